@@ -1,0 +1,72 @@
+//! Per-body particle columns.
+
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+
+/// A body of particles sharing one material.
+#[derive(Component, Clone, Debug)]
+pub struct Body {
+    pub name: String,
+    /// Position of the body in the scene file; systems visit bodies in this order.
+    pub index: usize,
+    /// Mass of one particle (kg).
+    pub particle_mass: f64,
+    /// Initial volume of one particle (m³).
+    pub particle_volume: f64,
+}
+
+/// Particle positions `x` (m). State.
+#[derive(Component, Clone, Debug, Default)]
+pub struct Position(pub Vec<DVec3>);
+
+/// Particle velocities `v` (m/s). State.
+#[derive(Component, Clone, Debug, Default)]
+pub struct Velocity(pub Vec<DVec3>);
+
+/// APIC affine velocity `C` (1/s), the MLS-MPM velocity gradient. State.
+#[derive(Component, Clone, Debug, Default)]
+pub struct AffineVelocity(pub Vec<DMat3>);
+
+/// Elastic deformation gradient `F` after the return mapping. State.
+#[derive(Component, Clone, Debug, Default)]
+pub struct DeformationGradient(pub Vec<DMat3>);
+
+/// Accumulated plastic strain `q` (Klár 2016 hardening). State; only present on bodies whose
+/// material hardens.
+#[derive(Component, Clone, Debug, Default)]
+pub struct Hardening(pub Vec<f64>);
+
+/// Trial deformation gradient `F_tmp = (I + Δt·C)·F`. Scratch.
+#[derive(Component, Clone, Debug, Default)]
+pub struct TrialDeformation(pub Vec<DMat3>);
+
+/// SVD factors of the trial deformation gradient. Scratch.
+#[derive(Component, Clone, Debug, Default)]
+pub struct SvdFactors {
+    pub u: Vec<DMat3>,
+    pub s: Vec<DVec3>,
+    pub v: Vec<DMat3>,
+}
+
+/// MLS-MPM affine matrix scattered by P2G: `m_p·C_p − Δt·V_p·(4/dx²)·τ_p`. Scratch.
+#[derive(Component, Clone, Debug, Default)]
+pub struct P2gAffine(pub Vec<DMat3>);
+
+/// Particle order for the race-free P2G scatter: particle indices bucketed by x-slab of the
+/// grid, and the start of each slab's bucket. Scratch, reused between substeps.
+#[derive(Component, Clone, Debug, Default)]
+pub struct ScatterOrder {
+    pub order: Vec<u32>,
+    pub slab_start: Vec<u32>,
+    pub counts: Vec<u32>,
+}
+
+/// The full particle state of one body, for snapshots, PLY output and tests.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BodyState {
+    pub name: String,
+    pub x: Vec<DVec3>,
+    pub v: Vec<DVec3>,
+    pub c: Vec<DMat3>,
+    pub f: Vec<DMat3>,
+}

@@ -1,0 +1,83 @@
+//! Error types at each boundary. Every message is one line that names where the problem is
+//! and what to do about it.
+
+use std::path::PathBuf;
+use thiserror::Error;
+
+/// A field whose value is out of range, before the file position is known.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FieldError {
+    /// Dotted path of the field, e.g. `materials.sand.friction_deg`.
+    pub field: String,
+    pub value: String,
+    /// What a valid value looks like.
+    pub expected: String,
+}
+
+impl FieldError {
+    pub fn new(
+        field: impl Into<String>,
+        value: impl Into<String>,
+        expected: impl Into<String>,
+    ) -> Self {
+        Self {
+            field: field.into(),
+            value: value.into(),
+            expected: expected.into(),
+        }
+    }
+    /// Prefixes the field path with its parent, e.g. `bodies[0]` + `fill.min`.
+    pub fn within(mut self, parent: &str) -> Self {
+        self.field = format!("{parent}.{}", self.field);
+        self
+    }
+}
+
+/// Problems with a scene file.
+#[derive(Debug, Error)]
+pub enum SceneError {
+    #[error("{file}: cannot read the scene file: {source}; check the path")]
+    Io {
+        file: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{file}:{line}:{col}: {message}; fix the scene file (all fields are documented in scenes/README.md)")]
+    Parse {
+        file: PathBuf,
+        line: usize,
+        col: usize,
+        message: String,
+    },
+    #[error("{file}:{line}:{col}: field `{field}` = {value} is out of range: expected {expected}")]
+    Invalid {
+        file: PathBuf,
+        line: usize,
+        col: usize,
+        field: String,
+        value: String,
+        expected: String,
+    },
+    #[error("{file}: unstable time step: Δt_sub = {dt_sub:.3e} s exceeds the stable {dt_max:.3e} s ({reason}); with stability: Strict the scene is refused: raise simulation.substeps to at least {needed} or set stability: Auto")]
+    Unstable {
+        file: PathBuf,
+        dt_sub: f64,
+        dt_max: f64,
+        needed: usize,
+        reason: String,
+    },
+}
+
+/// Failures while simulating.
+#[derive(Debug, Error)]
+pub enum SimError {
+    #[error("non-finite value at step {step}, substep {substep}: {fault}; the time step is probably too large for the material or the tool speed (try stability: Auto or more substeps)")]
+    NonFinite {
+        step: usize,
+        substep: usize,
+        fault: crate::components::Fault,
+    },
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    #[error("{0}")]
+    Other(String),
+}

@@ -1,0 +1,375 @@
+//! The `powderlab` command line.
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use powderlab::metrics::frame_metrics;
+use powderlab::sim::{SimOptions, Simulation};
+use powderlab::util::{peak_rss_bytes, write_atomic};
+use powderlab::validate;
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Parser)]
+#[command(
+    name = "powderlab",
+    version,
+    about = "Differentiable MPM simulation of powders"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run a scene forward, optionally recording it to a Rerun .rrd file.
+    Simulate {
+        scene: PathBuf,
+        /// Global steps (default: the scene's horizon).
+        #[arg(long)]
+        steps: Option<usize>,
+        /// Rerun recording to write.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Worker threads (default: the scene's setting; 0 = all cores).
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Write the final particle positions and velocities as PLY.
+        #[arg(long)]
+        save_state: Option<PathBuf>,
+    },
+    /// Measure throughput (particle-substeps per second), wall time, peak memory and stages.
+    Bench {
+        scene: PathBuf,
+        /// Global steps to time (default: the scene's horizon).
+        #[arg(long)]
+        steps: Option<usize>,
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Time each stage separately (adds a little overhead).
+        #[arg(long)]
+        stages: bool,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Check against exact solutions and published experiments.
+    Validate {
+        /// free_fall, column_collapse or all.
+        #[arg(default_value = "all")]
+        case: String,
+        /// Grid cells across the collapsing column (at least 20 for the published check).
+        #[arg(long, default_value_t = 20)]
+        cells: usize,
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+        /// Also write the JSON report here.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+}
+
+fn bar(len: u64, quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} {msg} (eta {eta})")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    pb
+}
+
+fn describe_stability(sim: &Simulation) {
+    let s = &sim.stability;
+    let p = sim.params();
+    eprintln!(
+        "stability: wave speed {:.3} m/s, largest speed {:.3} m/s, stable substep {:.3e} s",
+        s.wave_speed, s.max_speed, s.dt_max
+    );
+    if s.raised() {
+        eprintln!(
+            "stability: Auto raised substeps from {} to {} (Δt_sub = {:.3e} s)",
+            s.substeps_requested, s.substeps, p.dt_sub
+        );
+    }
+}
+
+fn simulate(
+    scene: PathBuf,
+    steps: Option<usize>,
+    out: Option<PathBuf>,
+    threads: Option<usize>,
+    save_state: Option<PathBuf>,
+) -> Result<()> {
+    let mut sim = Simulation::from_file(
+        &scene,
+        &SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    describe_stability(&sim);
+    let steps = steps.unwrap_or(sim.horizon);
+    let n = sim.particle_count();
+    eprintln!(
+        "{}: {} particles, {} steps × {} substeps, {} threads; systems: {}",
+        scene.display(),
+        n,
+        steps,
+        sim.params().substeps,
+        sim.threads(),
+        sim.system_names().join(" → ")
+    );
+    let target = sim.scene.task.as_ref().map(|t| t.target.clone());
+    #[cfg(feature = "rerun")]
+    let mut recorder = match &out {
+        Some(path) => {
+            let every = sim.scene.record.as_ref().map_or(1, |r| r.every);
+            let radius = sim
+                .scene
+                .record
+                .as_ref()
+                .and_then(|r| r.point_radius)
+                .unwrap_or(0.5 * sim.scene.simulation.dx / 2.0);
+            let mut r = powderlab::record::Recorder::create(
+                path,
+                &mut sim.world,
+                every,
+                target.clone(),
+                radius,
+            )?;
+            r.frame(&mut sim.world)?;
+            Some(r)
+        }
+        None => None,
+    };
+    #[cfg(not(feature = "rerun"))]
+    if out.is_some() {
+        bail!("--out needs the `rerun` feature: rebuild without --no-default-features");
+    }
+    let pb = bar(steps as u64, false);
+    let start = Instant::now();
+    for _ in 0..steps {
+        sim.step()?;
+        #[cfg(feature = "rerun")]
+        if let Some(r) = recorder.as_mut() {
+            r.frame(&mut sim.world)?;
+        }
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let wall = start.elapsed().as_secs_f64();
+    #[cfg(feature = "rerun")]
+    if let Some(r) = recorder {
+        r.finish()?;
+    }
+    if let Some(path) = &save_state {
+        powderlab::ply::write_ply(path, &sim.body_states())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let m = frame_metrics(&mut sim.world, target.as_deref());
+    let ps = n as f64 * sim.clock().total_substeps as f64;
+    eprintln!(
+        "done: {steps} steps in {wall:.2} s ({:.3} M particle-substeps/s); mean height {:.4} m{}",
+        ps / wall / 1e6,
+        m.mean_height,
+        target.map_or(String::new(), |t| format!(
+            "; {} particles in '{t}'",
+            m.transported
+        ))
+    );
+    if let Some(p) = &out {
+        eprintln!("recording: {}", p.display());
+    }
+    if let Some(p) = &save_state {
+        eprintln!("state: {}", p.display());
+    }
+    Ok(())
+}
+
+fn bench(
+    scene: PathBuf,
+    steps: Option<usize>,
+    threads: Option<usize>,
+    stages: bool,
+    json_out: bool,
+) -> Result<()> {
+    let mut sim = Simulation::from_file(
+        &scene,
+        &SimOptions {
+            threads,
+            stage_timers: stages,
+        },
+    )?;
+    if !json_out {
+        describe_stability(&sim);
+    }
+    let steps = steps.unwrap_or(sim.horizon);
+    let n = sim.particle_count();
+    let start = Instant::now();
+    let pb = bar(steps as u64, json_out);
+    for _ in 0..steps {
+        sim.step()?;
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let wall = start.elapsed().as_secs_f64();
+    let substeps = sim.clock().total_substeps;
+    let rate = n as f64 * substeps as f64 / wall;
+    let stage_s = sim.stage_seconds();
+    let peak = peak_rss_bytes();
+    let mean_pos = {
+        let st = sim.body_states();
+        let all: Vec<_> = st.iter().flat_map(|b| b.x.iter().copied()).collect();
+        all.iter().copied().sum::<glam::DVec3>() / all.len().max(1) as f64
+    };
+    if json_out {
+        let stages_obj: serde_json::Map<String, serde_json::Value> = stage_s
+            .iter()
+            .map(|(k, v)| (format!("{k}_s"), json!(v)))
+            .collect();
+        println!(
+            "{}",
+            json!({
+                "scene": scene.display().to_string(),
+                "particles": n,
+                "steps": steps,
+                "substeps_total": substeps,
+                "threads": sim.threads(),
+                "wall_s": wall,
+                "particle_substeps_per_s": rate,
+                "peak_rss_bytes": peak,
+                "final_mean_position_m": [mean_pos.x, mean_pos.y, mean_pos.z],
+                "stages": stages_obj,
+            })
+        );
+    } else {
+        println!("scene            {}", scene.display());
+        println!("particles        {n}");
+        println!(
+            "substeps         {substeps} ({steps} steps, {} threads)",
+            sim.threads()
+        );
+        println!("wall time        {wall:.3} s");
+        println!("throughput       {:.3} M particle-substeps/s", rate / 1e6);
+        println!("peak RSS         {:.1} MB", peak as f64 / 1e6);
+        println!(
+            "final mean x     ({:.6}, {:.6}, {:.6}) m",
+            mean_pos.x, mean_pos.y, mean_pos.z
+        );
+        if !stage_s.is_empty() {
+            let total: f64 = stage_s.iter().map(|s| s.1).sum();
+            for (k, v) in &stage_s {
+                println!("  {k:<20} {v:>8.3} s  {:>5.1} %", 100.0 * v / total);
+            }
+        }
+    }
+    Ok(())
+}
+
+fn validate_cmd(
+    case: String,
+    cells: usize,
+    threads: Option<usize>,
+    json_out: bool,
+    report: Option<PathBuf>,
+) -> Result<()> {
+    let mut checks = Vec::new();
+    let known = ["all", "free_fall", "column_collapse"];
+    if !known.contains(&case.as_str()) {
+        bail!("unknown validation case '{case}': expected one of {known:?}");
+    }
+    if case == "all" || case == "free_fall" {
+        checks.extend(validate::free_fall(threads)?);
+    }
+    if case == "all" || case == "column_collapse" {
+        if cells < 4 {
+            bail!("--cells {cells} is too coarse: use at least 4 (20 for the published check)");
+        }
+        for (band, aspects, slope, tol) in [
+            ("small", [0.5, 1.0, 1.5], 1.0, 0.15),
+            ("large", [4.0, 6.0, 8.0], 2.0 / 3.0, 0.12),
+        ] {
+            let mut rs = Vec::new();
+            for a in aspects {
+                let pb = bar(1000, json_out);
+                pb.set_message(format!("column collapse a = {a}"));
+                let r = validate::run_collapse(&validate::Collapse::new(a, cells), threads, |f| {
+                    pb.set_position((f * 1000.0) as u64)
+                })?;
+                pb.finish_and_clear();
+                rs.push(r);
+            }
+            checks.extend(validate::collapse_checks(band, &rs, slope, tol));
+        }
+    }
+    let passed = checks.iter().all(|c| c.passed);
+    let obj = json!({ "passed": passed, "checks": checks });
+    if let Some(p) = &report {
+        write_atomic(p, serde_json::to_string_pretty(&obj)?.as_bytes())?;
+    }
+    if json_out {
+        println!("{obj}");
+    } else {
+        println!(
+            "{:<16} {:<40} {:>12} {:>12} {:>10} {:<12} result",
+            "case", "quantity", "measured", "published", "tolerance", "kind"
+        );
+        for c in &checks {
+            println!(
+                "{:<16} {:<40} {:>12.5e} {:>12.5e} {:>10.3e} {:<12} {}  {}",
+                c.case,
+                c.quantity,
+                c.measured,
+                c.published,
+                c.tolerance,
+                c.kind,
+                if c.passed { "PASS" } else { "FAIL" },
+                c.note
+            );
+        }
+    }
+    if !passed {
+        std::process::exit(1);
+    }
+    Ok(())
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let r = match cli.command {
+        Command::Simulate {
+            scene,
+            steps,
+            out,
+            threads,
+            save_state,
+        } => simulate(scene, steps, out, threads, save_state),
+        Command::Bench {
+            scene,
+            steps,
+            threads,
+            stages,
+            json,
+        } => bench(scene, steps, threads, stages, json),
+        Command::Validate {
+            case,
+            cells,
+            threads,
+            json,
+            report,
+        } => validate_cmd(case, cells, threads, json, report),
+    };
+    if let Err(e) = r {
+        eprintln!("error: {e:#}");
+        std::process::exit(2);
+    }
+}

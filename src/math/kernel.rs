@@ -1,0 +1,99 @@
+//! Quadratic B-spline weights for MLS-MPM (Hu et al. 2018).
+//!
+//! For a particle at grid coordinate `X = x/dx`, the stencil base node is
+//! `base = floor(X - 0.5)` and `fx = X - base ∈ [0.5, 1.5)`. Along one axis the three weights are
+//!
+//! ```text
+//! w0 = ½(1.5 − fx)²,  w1 = ¾ − (fx − 1)²,  w2 = ½(fx − 0.5)²
+//! ```
+//!
+//! and their derivatives with respect to `fx` are `fx − 1.5`, `−2(fx − 1)` and `fx − 0.5`.
+//! The weights sum to 1 and their derivatives sum to 0 for every `fx` (partition of unity).
+
+use glam::DVec3;
+
+/// Stencil of one particle: base node, fractional offset and per-axis weights.
+#[derive(Clone, Copy, Debug)]
+pub struct Stencil {
+    /// Index of the first stencil node along each axis.
+    pub base: [usize; 3],
+    /// `X - base` along each axis, in cells.
+    pub fx: DVec3,
+    /// `w[a][i]`: weight of node `base[a] + i` along axis `a`.
+    pub w: [[f64; 3]; 3],
+}
+
+/// The three quadratic B-spline weights along one axis.
+#[inline(always)]
+pub fn weights_1d(fx: f64) -> [f64; 3] {
+    let a = 1.5 - fx;
+    let b = fx - 1.0;
+    let c = fx - 0.5;
+    [0.5 * a * a, 0.75 - b * b, 0.5 * c * c]
+}
+
+/// Derivatives of [`weights_1d`] with respect to `fx`.
+#[inline(always)]
+pub fn weights_1d_deriv(fx: f64) -> [f64; 3] {
+    [fx - 1.5, -2.0 * (fx - 1.0), fx - 0.5]
+}
+
+/// Stencil of a particle at `x` on a grid with node `i` at `origin + i·dx`.
+///
+/// The caller guarantees that the base lies inside the grid (the advect stage keeps particles in
+/// the safe region); `grid_x` is `(x - origin)/dx`.
+#[inline(always)]
+pub fn stencil(grid_x: DVec3) -> Stencil {
+    let b = (grid_x - DVec3::splat(0.5)).floor();
+    let fx = grid_x - b;
+    Stencil {
+        base: [b.x as usize, b.y as usize, b.z as usize],
+        fx,
+        w: [weights_1d(fx.x), weights_1d(fx.y), weights_1d(fx.z)],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Round-off bound for sums of three O(1) terms in f64.
+    const SUM_TOL: f64 = 1e-15;
+
+    #[test]
+    fn partition_of_unity_and_zero_gradient_sum() {
+        for k in 0..=1000 {
+            let fx = 0.5 + k as f64 / 1000.0 * (1.0 - 1e-12);
+            let w = weights_1d(fx);
+            let dw = weights_1d_deriv(fx);
+            assert!((w.iter().sum::<f64>() - 1.0).abs() < SUM_TOL);
+            assert!(dw.iter().sum::<f64>().abs() < SUM_TOL);
+            assert!(w.iter().all(|&x| x >= 0.0));
+            // First moment: sum w_i (i - fx) = 0, which makes the APIC transfer affine-exact.
+            let m1: f64 = (0..3).map(|i| w[i] * (i as f64 - fx)).sum();
+            assert!(m1.abs() < SUM_TOL);
+        }
+    }
+
+    #[test]
+    fn derivative_matches_central_difference() {
+        const H: f64 = 1e-6;
+        // Central difference of a quadratic is exact up to round-off ~ eps/H.
+        const TOL: f64 = 1e-9;
+        for k in 1..100 {
+            let fx = 0.5 + k as f64 / 100.0;
+            let d = weights_1d_deriv(fx);
+            let (p, m) = (weights_1d(fx + H), weights_1d(fx - H));
+            for i in 0..3 {
+                assert!(((p[i] - m[i]) / (2.0 * H) - d[i]).abs() < TOL);
+            }
+        }
+    }
+
+    #[test]
+    fn stencil_base_and_offset() {
+        let s = stencil(DVec3::new(3.2, 7.9, 0.5));
+        assert_eq!(s.base, [2, 7, 0]);
+        assert!((s.fx - DVec3::new(1.2, 0.9, 0.5)).abs().max_element() < 1e-12);
+    }
+}

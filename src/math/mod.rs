@@ -1,0 +1,12 @@
+//! Pure maths: plain functions with no ECS or I/O, each testable on its own.
+//!
+//! Systems in `crate::systems` are thin wrappers that query components, call these functions
+//! and write the results back. The adjoint twins (`*_adj`) will sit beside each function
+//! (see `crate::adjoint`).
+
+pub mod contact;
+pub mod kernel;
+pub mod pose;
+pub mod return_map;
+pub mod sdf;
+pub mod svd;

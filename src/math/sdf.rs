@@ -1,0 +1,351 @@
+//! Analytic signed distance functions in a shape's local frame, with their gradients.
+//!
+//! Every function returns `(φ, ∇φ)`: `φ < 0` inside the solid, `|∇φ| = 1` wherever the
+//! gradient is defined. Composite shapes (cup, spoon) combine primitives with `min`/`max`; the
+//! gradient is that of the active branch (a kink where branches tie, documented for the adjoint).
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+/// A rigid shape, in SI units, described in its local frame.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub enum Shape {
+    /// Half-space below the plane through the origin with the given outward normal.
+    Plane { normal: [f64; 3] },
+    /// Axis-aligned box centred at the origin.
+    Box { half_extents: [f64; 3] },
+    /// Sphere centred at the origin.
+    Sphere { radius: f64 },
+    /// Capsule along local y: segment from `-half_length` to `+half_length`.
+    Capsule { half_length: f64, radius: f64 },
+    /// Capped cylinder along local y, centred at the origin.
+    Cylinder { radius: f64, half_height: f64 },
+    /// Hollow cylinder with a floor; origin at the centre of the bottom face, open at `y = height`.
+    Cup {
+        outer_radius: f64,
+        height: f64,
+        wall_thickness: f64,
+        floor_thickness: f64,
+    },
+    /// Spherical-cap bowl shell plus a capsule handle. Origin at the sphere centre; the bowl
+    /// opens towards +y and reaches `bowl_depth` up from its lowest point at `y = -bowl_radius`;
+    /// the handle leaves the rim along +x, rising by `handle_rise` over `handle_length`.
+    Spoon {
+        bowl_radius: f64,
+        bowl_depth: f64,
+        thickness: f64,
+        handle_length: f64,
+        handle_radius: f64,
+        #[serde(default)]
+        handle_rise: f64,
+    },
+}
+
+#[inline(always)]
+fn sign(x: f64) -> f64 {
+    if x < 0.0 {
+        -1.0
+    } else {
+        1.0
+    }
+}
+
+/// Box of half extents `h`. Inside, the normal is the nearest face (ties: x, then y, then z),
+/// matching the Taichi reference benchmark.
+#[inline]
+pub fn sd_box(p: DVec3, h: DVec3) -> (f64, DVec3) {
+    let d = p.abs() - h;
+    let o = d.max(DVec3::ZERO);
+    let dmax = d.max_element();
+    if dmax > 0.0 {
+        let len = o.length();
+        let s = DVec3::new(sign(p.x), sign(p.y), sign(p.z));
+        (len, o * s / len)
+    } else if d.x >= d.y && d.x >= d.z {
+        (d.x, DVec3::new(sign(p.x), 0.0, 0.0))
+    } else if d.y >= d.z {
+        (d.y, DVec3::new(0.0, sign(p.y), 0.0))
+    } else {
+        (d.z, DVec3::new(0.0, 0.0, sign(p.z)))
+    }
+}
+
+#[inline]
+pub fn sd_sphere(p: DVec3, r: f64) -> (f64, DVec3) {
+    let l = p.length();
+    let n = if l > 0.0 { p / l } else { DVec3::Y };
+    (l - r, n)
+}
+
+#[inline]
+pub fn sd_capsule_y(p: DVec3, half_length: f64, r: f64) -> (f64, DVec3) {
+    let c = DVec3::new(0.0, p.y.clamp(-half_length, half_length), 0.0);
+    sd_sphere(p - c, r)
+}
+
+/// Capsule between two points `a` and `b`.
+#[inline]
+pub fn sd_capsule(p: DVec3, a: DVec3, b: DVec3, r: f64) -> (f64, DVec3) {
+    let ab = b - a;
+    let t = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+    sd_sphere(p - (a + t * ab), r)
+}
+
+/// Capped cylinder along y, centred at `(0, cy, 0)`.
+#[inline]
+pub fn sd_cylinder_y(p: DVec3, cy: f64, r: f64, hh: f64) -> (f64, DVec3) {
+    let rho = (p.x * p.x + p.z * p.z).sqrt();
+    let radial = if rho > 0.0 {
+        DVec3::new(p.x / rho, 0.0, p.z / rho)
+    } else {
+        DVec3::X
+    };
+    let y = p.y - cy;
+    let axial = DVec3::new(0.0, sign(y), 0.0);
+    let (dx, dy) = (rho - r, y.abs() - hh);
+    if dx > 0.0 && dy > 0.0 {
+        let l = dx.hypot(dy);
+        (l, (radial * dx + axial * dy) / l)
+    } else if dx > dy {
+        (dx, radial)
+    } else {
+        (dy, axial)
+    }
+}
+
+/// Spherical shell of radius `r`, half thickness `t`, cut by the plane `y = h`, keeping `y < h`.
+/// After Quílez's "cut hollow sphere".
+#[inline]
+pub fn sd_cut_hollow_sphere(p: DVec3, r: f64, h: f64, t: f64) -> (f64, DVec3) {
+    let w = (r * r - h * h).max(0.0).sqrt();
+    let rho = (p.x * p.x + p.z * p.z).sqrt();
+    let radial = if rho > 0.0 {
+        DVec3::new(p.x / rho, 0.0, p.z / rho)
+    } else {
+        DVec3::X
+    };
+    let (g_rho, g_y, d) = if h * rho < w * p.y {
+        let (a, b) = (rho - w, p.y - h);
+        let l = a.hypot(b).max(1e-300);
+        (a / l, b / l, l)
+    } else {
+        let l = rho.hypot(p.y).max(1e-300);
+        let s = sign(l - r);
+        (s * rho / l, s * p.y / l, (l - r).abs())
+    };
+    (d - t, radial * g_rho + DVec3::new(0.0, g_y, 0.0))
+}
+
+impl Shape {
+    /// Signed distance and gradient at the local point `p`.
+    pub fn sdf(&self, p: DVec3) -> (f64, DVec3) {
+        match *self {
+            Shape::Plane { normal } => {
+                let n = DVec3::from(normal).normalize();
+                (p.dot(n), n)
+            }
+            Shape::Box { half_extents } => sd_box(p, half_extents.into()),
+            Shape::Sphere { radius } => sd_sphere(p, radius),
+            Shape::Capsule {
+                half_length,
+                radius,
+            } => sd_capsule_y(p, half_length, radius),
+            Shape::Cylinder {
+                radius,
+                half_height,
+            } => sd_cylinder_y(p, 0.0, radius, half_height),
+            Shape::Cup {
+                outer_radius,
+                height,
+                wall_thickness,
+                floor_thickness,
+            } => {
+                let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
+                // The cavity extends above the rim so the cup is open at the top.
+                let top = height + outer_radius;
+                let inner = sd_cylinder_y(
+                    p,
+                    0.5 * (floor_thickness + top),
+                    outer_radius - wall_thickness,
+                    0.5 * (top - floor_thickness),
+                );
+                if outer.0 >= -inner.0 {
+                    outer
+                } else {
+                    (-inner.0, -inner.1)
+                }
+            }
+            Shape::Spoon {
+                bowl_radius,
+                bowl_depth,
+                thickness,
+                handle_length,
+                handle_radius,
+                handle_rise,
+            } => {
+                let h = bowl_depth - bowl_radius;
+                let bowl = sd_cut_hollow_sphere(p, bowl_radius, h, 0.5 * thickness);
+                let w = (bowl_radius * bowl_radius - h * h).max(0.0).sqrt();
+                let a = DVec3::new(w, h, 0.0);
+                let b = a + DVec3::new(handle_length, handle_rise, 0.0);
+                let handle = sd_capsule(p, a, b, handle_radius);
+                if bowl.0 <= handle.0 {
+                    bowl
+                } else {
+                    handle
+                }
+            }
+        }
+    }
+
+    /// Radius of a sphere about the local origin that contains the solid (infinite for a plane).
+    pub fn bounding_radius(&self) -> f64 {
+        match *self {
+            Shape::Plane { .. } => f64::INFINITY,
+            Shape::Box { half_extents } => DVec3::from(half_extents).length(),
+            Shape::Sphere { radius } => radius,
+            Shape::Capsule {
+                half_length,
+                radius,
+            } => half_length + radius,
+            Shape::Cylinder {
+                radius,
+                half_height,
+            } => radius.hypot(half_height),
+            Shape::Cup {
+                outer_radius,
+                height,
+                ..
+            } => outer_radius.hypot(height),
+            Shape::Spoon {
+                bowl_radius,
+                handle_length,
+                handle_radius,
+                handle_rise,
+                thickness,
+                ..
+            } => bowl_radius + handle_length.hypot(handle_rise) + handle_radius + thickness,
+        }
+    }
+
+    /// Thinnest wall of the shape, for the leak check of the stability guard.
+    pub fn min_wall(&self) -> f64 {
+        match *self {
+            Shape::Cup {
+                wall_thickness,
+                floor_thickness,
+                ..
+            } => wall_thickness.min(floor_thickness),
+            Shape::Spoon {
+                thickness,
+                handle_radius,
+                ..
+            } => thickness.min(2.0 * handle_radius),
+            _ => f64::INFINITY,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Finite-difference step and tolerance for gradient checks away from kinks (f64).
+    const H: f64 = 1e-7;
+    const GRAD_TOL: f64 = 1e-6;
+
+    fn shapes() -> Vec<Shape> {
+        vec![
+            Shape::Plane {
+                normal: [0.0, 1.0, 0.2],
+            },
+            Shape::Box {
+                half_extents: [0.05, 0.01, 0.05],
+            },
+            Shape::Sphere { radius: 0.03 },
+            Shape::Capsule {
+                half_length: 0.02,
+                radius: 0.005,
+            },
+            Shape::Cylinder {
+                radius: 0.03,
+                half_height: 0.02,
+            },
+            Shape::Cup {
+                outer_radius: 0.04,
+                height: 0.06,
+                wall_thickness: 0.002,
+                floor_thickness: 0.003,
+            },
+            Shape::Spoon {
+                bowl_radius: 0.02,
+                bowl_depth: 0.012,
+                thickness: 0.0015,
+                handle_length: 0.1,
+                handle_radius: 0.003,
+                handle_rise: 0.02,
+            },
+        ]
+    }
+
+    fn lcg(seed: &mut u64) -> f64 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    #[test]
+    fn gradient_matches_central_difference_and_is_unit() {
+        let mut seed = 3;
+        for s in shapes() {
+            let mut checked = 0;
+            for _ in 0..4000 {
+                let p = 0.08 * DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed));
+                let (_, g) = s.sdf(p);
+                let fd = DVec3::new(
+                    (s.sdf(p + DVec3::X * H).0 - s.sdf(p - DVec3::X * H).0) / (2.0 * H),
+                    (s.sdf(p + DVec3::Y * H).0 - s.sdf(p - DVec3::Y * H).0) / (2.0 * H),
+                    (s.sdf(p + DVec3::Z * H).0 - s.sdf(p - DVec3::Z * H).0) / (2.0 * H),
+                );
+                // Skip points within 1e-5 of a kink (branch switch), where FD straddles it.
+                let smooth = (1..=3).all(|k| {
+                    let e = 1e-5 * k as f64;
+                    [DVec3::X, DVec3::Y, DVec3::Z].iter().all(|&a| {
+                        ((s.sdf(p + a * e).1 - g).length() < 1e-3)
+                            && ((s.sdf(p - a * e).1 - g).length() < 1e-3)
+                    })
+                });
+                if !smooth {
+                    continue;
+                }
+                checked += 1;
+                assert!(
+                    (fd - g).length() < GRAD_TOL,
+                    "{s:?} at {p:?}: {g:?} vs {fd:?}"
+                );
+                assert!((g.length() - 1.0).abs() < 1e-12);
+            }
+            assert!(checked > 1000, "{s:?}: only {checked} smooth samples");
+        }
+    }
+
+    #[test]
+    fn cup_and_spoon_have_thin_walls_where_expected() {
+        let cup = &shapes()[5];
+        // Inside the wall (between inner and outer radius, above the floor).
+        assert!(cup.sdf(DVec3::new(0.039, 0.03, 0.0)).0 < 0.0);
+        // In the cavity, and outside.
+        assert!(cup.sdf(DVec3::new(0.0, 0.03, 0.0)).0 > 0.0);
+        assert!(cup.sdf(DVec3::new(0.05, 0.03, 0.0)).0 > 0.0);
+        // In the floor.
+        assert!(cup.sdf(DVec3::new(0.0, 0.001, 0.0)).0 < 0.0);
+        let spoon = &shapes()[6];
+        // Bottom of the bowl is solid, its centre of curvature is not.
+        assert!(spoon.sdf(DVec3::new(0.0, -0.02, 0.0)).0 < 0.0);
+        assert!(spoon.sdf(DVec3::new(0.0, -0.015, 0.0)).0 > 0.0);
+        // Above the cut plane the sphere is open.
+        assert!(spoon.sdf(DVec3::new(0.0, 0.019, 0.0)).0 > 0.0);
+    }
+}

@@ -1,0 +1,159 @@
+//! Headless Rerun recording (DESIGN §7).
+//!
+//! Entities:
+//! - `world/powder/<body>`: `Points3D` coloured by speed;
+//! - `world/tools/<name>`, `world/containers/<name>`: a static `Mesh3D` plus a `Transform3D`
+//!   per recorded frame;
+//! - `metrics/transported_particles`, `metrics/mean_height`, `metrics/kinetic_energy`,
+//!   `metrics/gravitational_energy`: `Scalars`.
+//!
+//! Timelines: `step` (sequence) and `sim_time` (duration). The file is written to
+//! `<out>.partial` and renamed when the recording is finished, so a reader never sees a
+//! half-written `.rrd` under the final name; an interrupted run leaves the `.partial` stream,
+//! which Rerun still opens.
+
+use crate::components::*;
+use crate::mesh::shape_mesh;
+use crate::metrics::frame_metrics;
+use crate::util::partial_path;
+use bevy_ecs::prelude::*;
+use rerun::{Mesh3D, Points3D, RecordingStream, Scalars, Transform3D};
+use std::path::{Path, PathBuf};
+
+/// An open recording.
+pub struct Recorder {
+    rec: RecordingStream,
+    path: PathBuf,
+    every: usize,
+    target: Option<String>,
+    point_radius: f32,
+}
+
+fn entity_of(c: &Collider) -> String {
+    match c.kind {
+        ColliderKind::Tool => format!("world/tools/{}", c.name),
+        ColliderKind::Container => format!("world/containers/{}", c.name),
+    }
+}
+
+/// Speed colour map: dark blue at rest through cyan and yellow to red at `v_ref`.
+pub fn speed_colour(speed: f64, v_ref: f64) -> [u8; 4] {
+    let t = (speed / v_ref).clamp(0.0, 1.0) as f32;
+    let stops = [
+        [40.0, 60.0, 140.0],
+        [60.0, 190.0, 210.0],
+        [240.0, 220.0, 80.0],
+        [220.0, 50.0, 40.0],
+    ];
+    let x = t * 3.0;
+    let i = (x.floor() as usize).min(2);
+    let f = x - i as f32;
+    let c: [f32; 3] = std::array::from_fn(|k| stops[i][k] * (1.0 - f) + stops[i + 1][k] * f);
+    [c[0] as u8, c[1] as u8, c[2] as u8, 255]
+}
+
+impl Recorder {
+    /// Opens `path` for recording and logs the static collider meshes.
+    pub fn create(
+        path: &Path,
+        world: &mut World,
+        every: usize,
+        target: Option<String>,
+        point_radius: f64,
+    ) -> anyhow::Result<Recorder> {
+        let rec = rerun::RecordingStreamBuilder::new("powderlab").save(partial_path(path))?;
+        let mut q = world.query::<&Collider>();
+        let mut cs: Vec<_> = q.iter(world).cloned().collect();
+        cs.sort_by_key(|c| c.index);
+        for c in &cs {
+            let m = shape_mesh(&c.shape);
+            let colour = match c.kind {
+                ColliderKind::Tool => [200, 200, 210, 255],
+                ColliderKind::Container => [150, 170, 200, 140],
+            };
+            rec.log_static(
+                entity_of(c),
+                &Mesh3D::new(m.vertices)
+                    .with_triangle_indices(m.triangles)
+                    .with_albedo_factor(rerun::Rgba32::from_unmultiplied_rgba(
+                        colour[0], colour[1], colour[2], colour[3],
+                    )),
+            )?;
+        }
+        Ok(Recorder {
+            rec,
+            path: path.to_path_buf(),
+            every: every.max(1),
+            target,
+            point_radius: point_radius as f32,
+        })
+    }
+
+    /// Records the current state if the step is a recorded one.
+    pub fn frame(&mut self, world: &mut World) -> anyhow::Result<()> {
+        let clock = *world.resource::<Clock>();
+        if clock.step % self.every != 0 {
+            return Ok(());
+        }
+        let dt = world.resource::<SimParams>().dt;
+        self.rec.set_time_sequence("step", clock.step as i64);
+        self.rec
+            .set_duration_secs("sim_time", clock.step as f64 * dt);
+        let mut q = world.query::<(&Body, &Position, &Velocity)>();
+        let mut bodies: Vec<_> = q.iter(world).collect();
+        bodies.sort_by_key(|b| b.0.index);
+        for (b, x, v) in bodies {
+            let pts: Vec<[f32; 3]> =
+                x.0.iter()
+                    .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+                    .collect();
+            let cols: Vec<rerun::Color> =
+                v.0.iter()
+                    .map(|v| {
+                        let c = speed_colour(v.length(), 0.5);
+                        rerun::Color::from_unmultiplied_rgba(c[0], c[1], c[2], c[3])
+                    })
+                    .collect();
+            self.rec.log(
+                format!("world/powder/{}", b.name),
+                &Points3D::new(pts)
+                    .with_colors(cols)
+                    .with_radii([self.point_radius]),
+            )?;
+        }
+        let mut q = world.query::<(&Collider, &ColliderPose)>();
+        for (c, p) in q.iter(world) {
+            let t = p.pose.translation;
+            let r = p.pose.rotation;
+            self.rec.log(
+                entity_of(c),
+                &Transform3D::from_translation_rotation(
+                    [t.x as f32, t.y as f32, t.z as f32],
+                    rerun::Quaternion::from_xyzw([r.x as f32, r.y as f32, r.z as f32, r.w as f32]),
+                ),
+            )?;
+        }
+        let m = frame_metrics(world, self.target.as_deref());
+        self.rec.log(
+            "metrics/transported_particles",
+            &Scalars::single(m.transported as f64),
+        )?;
+        self.rec
+            .log("metrics/mean_height", &Scalars::single(m.mean_height))?;
+        self.rec
+            .log("metrics/kinetic_energy", &Scalars::single(m.kinetic_energy))?;
+        self.rec.log(
+            "metrics/gravitational_energy",
+            &Scalars::single(m.gravitational_energy),
+        )?;
+        Ok(())
+    }
+
+    /// Flushes and moves the recording to its final name.
+    pub fn finish(self) -> anyhow::Result<()> {
+        self.rec.flush_blocking()?;
+        drop(self.rec);
+        std::fs::rename(partial_path(&self.path), &self.path)?;
+        Ok(())
+    }
+}

@@ -1,0 +1,628 @@
+//! The driver: builds the ECS world and the substep schedule from a scene, applies the
+//! stability guard, and runs `N_sub` substeps per global step.
+
+use crate::components::*;
+use crate::error::{FieldError, SceneError, SimError};
+use crate::materials::MaterialSpec;
+use crate::math::pose::Pose;
+use crate::math::sdf::Shape;
+use crate::scene::*;
+use crate::systems::{self, SubstepPlan};
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use std::time::Instant;
+
+/// What the stability guard found and chose.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StabilityReport {
+    /// Largest elastic wave speed `√((λ+2μ)/ρ)` over the bodies (m/s).
+    pub wave_speed: f64,
+    /// Largest speed of a tool point or initial particle (m/s).
+    pub max_speed: f64,
+    /// Largest stable substep `C·dx/(c + v)` (s).
+    pub dt_max: f64,
+    pub substeps_requested: usize,
+    pub substeps: usize,
+}
+
+impl StabilityReport {
+    pub fn raised(&self) -> bool {
+        self.substeps > self.substeps_requested
+    }
+}
+
+/// Options that override the scene.
+#[derive(Clone, Debug, Default)]
+pub struct SimOptions {
+    /// Worker threads (overrides the scene; 0 = all cores).
+    pub threads: Option<usize>,
+    /// Time each stage separately (for `bench`).
+    pub stage_timers: bool,
+}
+
+/// A running simulation.
+pub struct Simulation {
+    pub world: World,
+    schedule: Schedule,
+    stage_schedules: Option<Vec<(&'static str, Schedule)>>,
+    pool: rayon::ThreadPool,
+    pub plan: SubstepPlan,
+    pub stability: StabilityReport,
+    /// Global steps of the scene's horizon.
+    pub horizon: usize,
+    pub scene: Scene,
+}
+
+/// Particles of a fill, before collider clearance and domain checks.
+fn fill_points(scene: &Scene, body: &BodySpec) -> Vec<DVec3> {
+    let dx = scene.simulation.dx;
+    let ppa = (body.particles_per_cell as f64).cbrt().round() as usize;
+    let h = dx / ppa as f64;
+    let lattice = |lo: DVec3, hi: DVec3, keep: &dyn Fn(DVec3) -> bool| -> Vec<DVec3> {
+        let n = ((hi - lo) / h + DVec3::splat(1e-9)).floor();
+        let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
+        let mut out = Vec::with_capacity(nx * ny * nz);
+        for i in 0..nx {
+            for j in 0..ny {
+                for k in 0..nz {
+                    let p = lo + DVec3::new(i as f64 + 0.5, j as f64 + 0.5, k as f64 + 0.5) * h;
+                    if keep(p) {
+                        out.push(p);
+                    }
+                }
+            }
+        }
+        out
+    };
+    match &body.fill {
+        Fill::Box { min, max } => lattice(DVec3::from(*min), DVec3::from(*max), &|_| true),
+        Fill::Column {
+            base,
+            length,
+            aspect,
+            depth,
+        } => {
+            let b = DVec3::from(*base);
+            lattice(b, b + DVec3::new(*length, aspect * length, *depth), &|_| {
+                true
+            })
+        }
+        Fill::Cylinder {
+            base,
+            radius,
+            height,
+        } => {
+            let b = DVec3::from(*base);
+            lattice(
+                b - DVec3::new(*radius, 0.0, *radius),
+                b + DVec3::new(*radius, *height, *radius),
+                &|p| (p.x - b.x).hypot(p.z - b.z) < *radius,
+            )
+        }
+        Fill::InsideContainer { container, height } => {
+            let c = scene
+                .colliders
+                .iter()
+                .find(|c| &c.name == container)
+                .expect("validated");
+            let Shape::Cup {
+                outer_radius,
+                wall_thickness,
+                floor_thickness,
+                ..
+            } = c.shape
+            else {
+                unreachable!("validated: fill container is a cup")
+            };
+            let r = outer_radius - wall_thickness;
+            let pose = Pose {
+                translation: DVec3::from(c.position),
+                rotation: Scene::collider_rotation(c),
+            };
+            lattice(
+                DVec3::new(-r, floor_thickness, -r),
+                DVec3::new(r, floor_thickness + height, r),
+                &|p| p.x.hypot(p.z) < r,
+            )
+            .into_iter()
+            .map(|p| pose.to_world(p))
+            .collect()
+        }
+    }
+}
+
+/// Tiny deterministic generator (SplitMix64) for the lattice jitter.
+fn splitmix(state: &mut u64) -> f64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^= z >> 31;
+    (z >> 11) as f64 / (1u64 << 53) as f64
+}
+
+impl Simulation {
+    /// Builds a simulation from a validated scene.
+    pub fn new(scene: &Scene, opts: &SimOptions) -> Result<Simulation, SceneError> {
+        let s = &scene.simulation;
+        let dx = s.dx;
+        let n = [s.cells.0, s.cells.1, s.cells.2];
+        let grid = Grid::new(DVec3::from(s.domain_min), dx, n);
+        let (safe_lo, safe_hi) = (
+            grid.origin + DVec3::splat(dx),
+            grid.extent_max() - DVec3::splat(dx),
+        );
+        let mut world = World::new();
+
+        // Colliders first: particle fills are cleared against them.
+        let mut poses = Vec::new();
+        let mut horizon_from_controls = 0usize;
+        let mut max_speed = 0.0f64;
+        for (i, c) in scene.colliders.iter().enumerate() {
+            let pose = Pose {
+                translation: DVec3::from(c.position),
+                rotation: Scene::collider_rotation(c),
+            };
+            let kind = match c.kind {
+                ColliderKindSpec::Tool => ColliderKind::Tool,
+                ColliderKindSpec::Container => ColliderKind::Container,
+            };
+            let controls: Vec<[f64; 6]> = match &c.control {
+                None => Vec::new(),
+                Some(ControlSpec::Actions(a)) => a.clone(),
+                Some(ControlSpec::Constant {
+                    linear,
+                    angular,
+                    steps,
+                }) => {
+                    let u = [
+                        linear.0, linear.1, linear.2, angular.0, angular.1, angular.2,
+                    ]
+                    .map(|x| x * s.dt);
+                    vec![u; *steps]
+                }
+                Some(ControlSpec::Skill(sk)) => {
+                    let bottom = pose.to_world(lowest_local_point(&c.shape)).y;
+                    sk.controls(s.dt, bottom).0
+                }
+            };
+            horizon_from_controls = horizon_from_controls.max(controls.len());
+            let r = c.shape.bounding_radius();
+            for u in &controls {
+                let lin = DVec3::new(u[0], u[1], u[2]).length() / s.dt;
+                let ang = DVec3::new(u[3], u[4], u[5]).length() / s.dt;
+                max_speed = max_speed.max(lin + if r.is_finite() { ang * r } else { 0.0 });
+            }
+            poses.push((c, pose));
+            let mut e = world.spawn((
+                Collider {
+                    name: c.name.clone(),
+                    index: i,
+                    kind,
+                    shape: c.shape.clone(),
+                    friction: c.friction,
+                    contact: c.contact,
+                    band: c.band_cells * dx,
+                    particle_contact: c.particle_contact,
+                },
+                ColliderPose {
+                    pose,
+                    ..Default::default()
+                },
+            ));
+            if kind == ColliderKind::Tool {
+                e.insert(Control { per_step: controls });
+            }
+        }
+        check_tools_clear_of_containers(scene, &poses)?;
+
+        // Bodies.
+        let mut wave_speed = 0.0f64;
+        let mut min_particle_mass = f64::INFINITY;
+        let mut materials_used: Vec<MaterialSpec> = Vec::new();
+        let mut seed = s.seed;
+        for (i, b) in scene.bodies.iter().enumerate() {
+            let mat = &scene.materials[&b.material];
+            let mat = match mat {
+                MaterialSpec::DruckerPrager(dp) => {
+                    MaterialSpec::DruckerPrager(dp.clone().prepared())
+                }
+                other => other.clone(),
+            };
+            let ppa = (b.particles_per_cell as f64).cbrt().round();
+            let h = dx / ppa;
+            let mut x: Vec<DVec3> = fill_points(scene, b);
+            if let Lattice::Jittered(j) = b.lattice {
+                for p in &mut x {
+                    let d = DVec3::new(
+                        splitmix(&mut seed),
+                        splitmix(&mut seed),
+                        splitmix(&mut seed),
+                    );
+                    *p += (d - DVec3::splat(0.5)) * (j * h);
+                }
+            }
+            // Keep particles clear of every collider by a quarter spacing.
+            x.retain(|&p| {
+                poses.iter().all(|(c, pose)| {
+                    let cp = ColliderPose {
+                        pose: *pose,
+                        ..Default::default()
+                    };
+                    cp.sdf(&c.shape, p).0 > 0.25 * h
+                })
+            });
+            if let Some(p) = x
+                .iter()
+                .find(|p| !(p.cmpge(safe_lo).all() && p.cmple(safe_hi).all()))
+            {
+                return Err(scene.field_error(FieldError::new(
+                    format!("bodies[{i}].fill"),
+                    format!("a particle at ({:.4}, {:.4}, {:.4})", p.x, p.y, p.z),
+                    format!(
+                        "every particle inside the grid's safe region ({:.4}, {:.4}, {:.4})–({:.4}, {:.4}, {:.4}) m; shrink the fill or enlarge simulation.cells",
+                        safe_lo.x, safe_lo.y, safe_lo.z, safe_hi.x, safe_hi.y, safe_hi.z
+                    ),
+                )));
+            }
+            let volume = h * h * h;
+            let mass = mat.density() * volume;
+            let (mu, lambda) = mat.lame();
+            wave_speed = wave_speed.max(((lambda + 2.0 * mu) / mat.density()).sqrt());
+            min_particle_mass = min_particle_mass.min(mass);
+            let v0 = DVec3::from(b.velocity);
+            max_speed = max_speed.max(v0.length());
+            if !materials_used
+                .iter()
+                .any(|m| m.plugin_index() == mat.plugin_index())
+            {
+                materials_used.push(mat.clone());
+            }
+            let np = x.len();
+            let mut e = world.spawn((
+                Body {
+                    name: b.name.clone(),
+                    index: i,
+                    particle_mass: mass,
+                    particle_volume: volume,
+                },
+                Position(x),
+                Velocity(vec![v0; np]),
+                AffineVelocity(vec![DMat3::ZERO; np]),
+                DeformationGradient(vec![DMat3::IDENTITY; np]),
+                TrialDeformation(vec![DMat3::IDENTITY; np]),
+                SvdFactors {
+                    u: vec![DMat3::IDENTITY; np],
+                    s: vec![DVec3::ONE; np],
+                    v: vec![DMat3::IDENTITY; np],
+                },
+                P2gAffine(vec![DMat3::ZERO; np]),
+                ScatterOrder::default(),
+            ));
+            if mat.hardens() {
+                e.insert(Hardening(vec![0.0; np]));
+            }
+            mat.insert_into(&mut e);
+        }
+
+        // Stability guard.
+        let dt_sub = s.dt / s.substeps as f64;
+        let dt_max = s.cfl * dx / (wave_speed + max_speed);
+        let mut substeps = s.substeps;
+        if dt_sub > dt_max * (1.0 + 1e-12) {
+            let needed = (s.dt / dt_max).ceil() as usize;
+            match s.stability {
+                Stability::Strict => {
+                    return Err(SceneError::Unstable {
+                        file: scene.path.clone(),
+                        dt_sub,
+                        dt_max,
+                        needed,
+                        reason: format!(
+                            "elastic wave speed {wave_speed:.3} m/s + largest speed {max_speed:.3} m/s, dx {dx} m, CFL {}",
+                            s.cfl
+                        ),
+                    })
+                }
+                Stability::Auto => {
+                    if needed > 1_000_000 {
+                        return Err(SceneError::Unstable {
+                            file: scene.path.clone(),
+                            dt_sub,
+                            dt_max,
+                            needed,
+                            reason: "even stability: Auto refuses more than 1e6 substeps per step".into(),
+                        });
+                    }
+                    substeps = needed;
+                }
+            }
+        }
+        let stability = StabilityReport {
+            wave_speed,
+            max_speed,
+            dt_max,
+            substeps_requested: s.substeps,
+            substeps,
+        };
+
+        world.insert_resource(SimParams {
+            dt: s.dt,
+            substeps,
+            dt_sub: s.dt / substeps as f64,
+            gravity: DVec3::from(s.gravity),
+            empty_node_mass: if min_particle_mass.is_finite() {
+                s.empty_node_ratio * min_particle_mass
+            } else {
+                0.0
+            },
+        });
+        world.insert_resource(grid);
+        world.insert_resource(DomainWalls {
+            cells: s.walls.cells,
+            mode: s.walls.contact,
+            friction: s.walls.friction,
+        });
+        world.insert_resource(Clock::default());
+        world.insert_resource(Health::default());
+
+        let plan = SubstepPlan {
+            materials: materials_used,
+            has_tools: scene
+                .colliders
+                .iter()
+                .any(|c| c.kind == ColliderKindSpec::Tool),
+            has_colliders: !scene.colliders.is_empty(),
+            particle_contact: scene.colliders.iter().any(|c| c.particle_contact),
+        };
+        let mut schedule = systems::build_substep_schedule(&plan);
+        schedule
+            .initialize(&mut world)
+            .map_err(|e| SceneError::Parse {
+                file: scene.path.clone(),
+                line: 1,
+                col: 1,
+                message: format!("internal: the substep schedule does not build: {e:?}"),
+            })?;
+        let stage_schedules = opts
+            .stage_timers
+            .then(|| systems::build_stage_schedules(&plan));
+        if opts.stage_timers {
+            world.insert_resource(StageTimers {
+                enabled: true,
+                ..Default::default()
+            });
+        }
+        let threads = opts.threads.unwrap_or(s.threads);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .map_err(|e| SceneError::Parse {
+                file: scene.path.clone(),
+                line: 1,
+                col: 1,
+                message: format!("cannot start {threads} worker threads: {e}"),
+            })?;
+        Ok(Simulation {
+            world,
+            schedule,
+            stage_schedules,
+            pool,
+            plan,
+            stability,
+            horizon: s.steps.unwrap_or(horizon_from_controls.max(1)),
+            scene: scene.clone(),
+        })
+    }
+
+    /// Loads a scene file and builds it.
+    pub fn from_file(
+        path: impl AsRef<std::path::Path>,
+        opts: &SimOptions,
+    ) -> Result<Simulation, SceneError> {
+        Simulation::new(&Scene::load(path)?, opts)
+    }
+
+    /// Names of the systems in the substep schedule, in run order.
+    pub fn system_names(&self) -> Vec<String> {
+        self.schedule
+            .systems()
+            .map(|it| {
+                it.map(|(_, s)| {
+                    let name = s.name().to_string();
+                    // Drop the crate and module prefix; keep `stage::system<Material>`.
+                    let name = name.replace("powderlab::systems::", "");
+                    name.replace("powderlab::materials::", "")
+                })
+                .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// Worker threads in use.
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+
+    pub fn clock(&self) -> Clock {
+        *self.world.resource::<Clock>()
+    }
+
+    pub fn params(&self) -> &SimParams {
+        self.world.resource::<SimParams>()
+    }
+
+    /// One substep.
+    pub fn substep(&mut self) -> Result<(), SimError> {
+        let world = &mut self.world;
+        match &mut self.stage_schedules {
+            None => self.pool.install(|| self.schedule.run(world)),
+            Some(stages) => {
+                for (name, s) in stages.iter_mut() {
+                    let t = Instant::now();
+                    self.pool.install(|| s.run(world));
+                    let dt = t.elapsed().as_secs_f64();
+                    world.resource_mut::<StageTimers>().add(name, dt);
+                }
+            }
+        }
+        let mut clock = *world.resource::<Clock>();
+        if let Some(fault) = world.resource_mut::<Health>().fault.take() {
+            return Err(SimError::NonFinite {
+                step: clock.step,
+                substep: clock.substep,
+                fault,
+            });
+        }
+        clock.total_substeps += 1;
+        clock.substep += 1;
+        *world.resource_mut::<Clock>() = clock;
+        Ok(())
+    }
+
+    /// One global step: `N_sub` substeps.
+    pub fn step(&mut self) -> Result<(), SimError> {
+        let n = self.params().substeps;
+        self.world.resource_mut::<Clock>().substep = 0;
+        for _ in 0..n {
+            self.substep()?;
+        }
+        let mut clock = self.world.resource_mut::<Clock>();
+        clock.step += 1;
+        clock.substep = 0;
+        Ok(())
+    }
+
+    /// Runs `steps` global steps, calling `progress` after each.
+    pub fn run(&mut self, steps: usize, mut progress: impl FnMut(usize)) -> Result<(), SimError> {
+        for k in 0..steps {
+            self.step()?;
+            progress(k + 1);
+        }
+        Ok(())
+    }
+
+    /// Particle state of every body, in scene order.
+    pub fn body_states(&mut self) -> Vec<BodyState> {
+        let mut q = self.world.query::<(
+            &Body,
+            &Position,
+            &Velocity,
+            &AffineVelocity,
+            &DeformationGradient,
+        )>();
+        let mut out: Vec<(usize, BodyState)> = q
+            .iter(&self.world)
+            .map(|(b, x, v, c, f)| {
+                (
+                    b.index,
+                    BodyState {
+                        name: b.name.clone(),
+                        x: x.0.clone(),
+                        v: v.0.clone(),
+                        c: c.0.clone(),
+                        f: f.0.clone(),
+                    },
+                )
+            })
+            .collect();
+        out.sort_by_key(|e| e.0);
+        out.into_iter().map(|e| e.1).collect()
+    }
+
+    /// Total particles.
+    pub fn particle_count(&mut self) -> usize {
+        let mut q = self.world.query::<&Position>();
+        q.iter(&self.world).map(|x| x.0.len()).sum()
+    }
+
+    /// Poses of every collider, in scene order: (name, kind, shape, pose).
+    pub fn collider_poses(&mut self) -> Vec<(String, ColliderKind, Shape, Pose)> {
+        collider_poses(&mut self.world)
+    }
+
+    /// Per-stage wall time so far (only with `SimOptions::stage_timers`).
+    pub fn stage_seconds(&self) -> Vec<(&'static str, f64)> {
+        self.world
+            .get_resource::<StageTimers>()
+            .map(|t| t.seconds.clone())
+            .unwrap_or_default()
+    }
+}
+
+/// Poses of every collider in a world, in scene order.
+pub fn collider_poses(world: &mut World) -> Vec<(String, ColliderKind, Shape, Pose)> {
+    let mut q = world.query::<(&Collider, &ColliderPose)>();
+    let mut v: Vec<_> = q
+        .iter(world)
+        .map(|(c, p)| (c.index, (c.name.clone(), c.kind, c.shape.clone(), p.pose)))
+        .collect();
+    v.sort_by_key(|e| e.0);
+    v.into_iter().map(|e| e.1).collect()
+}
+
+/// The lowest point of a shape in its local frame (used for the skill's descent).
+pub fn lowest_local_point(shape: &Shape) -> DVec3 {
+    match *shape {
+        Shape::Spoon {
+            bowl_radius,
+            thickness,
+            ..
+        } => DVec3::new(0.0, -bowl_radius - 0.5 * thickness, 0.0),
+        Shape::Sphere { radius } => DVec3::new(0.0, -radius, 0.0),
+        Shape::Box { half_extents } => DVec3::new(0.0, -half_extents[1], 0.0),
+        Shape::Capsule {
+            half_length,
+            radius,
+        } => DVec3::new(0.0, -half_length - radius, 0.0),
+        Shape::Cylinder { half_height, .. } => DVec3::new(0.0, -half_height, 0.0),
+        Shape::Cup { .. } | Shape::Plane { .. } => DVec3::ZERO,
+    }
+}
+
+/// Refuses a tool that starts inside a container's wall: samples points of the tool's solid on
+/// a 16³ lattice over its bounding box and tests them against every container.
+fn check_tools_clear_of_containers(
+    scene: &Scene,
+    poses: &[(&ColliderSpec, Pose)],
+) -> Result<(), SceneError> {
+    for (ti, (tool, tpose)) in poses.iter().enumerate() {
+        if tool.kind != ColliderKindSpec::Tool {
+            continue;
+        }
+        let r = tool.shape.bounding_radius();
+        if !r.is_finite() {
+            continue;
+        }
+        const N: usize = 16;
+        for a in 0..N {
+            for b in 0..N {
+                for c in 0..N {
+                    let local = (DVec3::new(a as f64, b as f64, c as f64) / (N - 1) as f64 * 2.0
+                        - DVec3::ONE)
+                        * r;
+                    if tool.shape.sdf(local).0 >= 0.0 {
+                        continue;
+                    }
+                    let p = tpose.to_world(local);
+                    for (cont, cpose) in poses {
+                        if cont.kind != ColliderKindSpec::Container {
+                            continue;
+                        }
+                        if cont.shape.sdf(cpose.to_local(p)).0 < 0.0 {
+                            return Err(scene.field_error(FieldError::new(
+                                format!("colliders[{ti}].position"),
+                                format!("{:?}", tool.position),
+                                format!(
+                                    "a start pose clear of container '{}' (the tool overlaps its wall at ({:.4}, {:.4}, {:.4}))",
+                                    cont.name, p.x, p.y, p.z
+                                ),
+                            )));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,264 @@
+//! Skills: Θ = (θ_d, θ_s, θ_l, θ_t, θ_p) ∈ [−1, 1]⁵ → a 6-D control per global step
+//! (DESIGN §4).
+//!
+//! Each θ maps linearly to a physical range from the scene, `value = min + (θ+1)/2·(max − min)`,
+//! and drives one phase: descend (scoop depth below the powder surface), scoop (rotation about
+//! the lateral axis while moving a fixed stroke), lift, transport, pour (rotation about the
+//! pour axis), settle. A phase of displacement `D` at speed `s` takes
+//! `n = max(1, round(|D|/(s·Δt)))` steps of `D/n` each, so the total displacement is exactly
+//! linear in θ while the step count is piecewise constant (straight-through rounding).
+
+use crate::error::FieldError;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+/// Physical ranges of the five skill parameters.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SkillRanges {
+    /// Depth of the bowl bottom below the powder surface (m).
+    pub scoop_depth: (f64, f64),
+    /// Rotation about the lateral axis during the scoop (degrees).
+    pub scoop_angle_deg: (f64, f64),
+    /// Height gained in the lift (m).
+    pub lift_height: (f64, f64),
+    /// Horizontal travel towards the target (m).
+    pub transport_distance: (f64, f64),
+    /// Rotation about the pour axis (degrees).
+    pub pour_angle_deg: (f64, f64),
+}
+
+/// A skill: parameters, their ranges and the fixed motion settings.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SkillSpec {
+    /// Θ ∈ [−1, 1]⁵: depth, scoop angle, lift, transport, pour.
+    pub theta: [f64; 5],
+    pub ranges: SkillRanges,
+    /// Linear tool speed (m/s).
+    pub linear_speed: f64,
+    /// Angular tool speed (degrees/s).
+    pub angular_speed_deg: f64,
+    /// Stroke travelled during the scoop (m).
+    pub scoop_stroke: f64,
+    /// Height of the powder surface the descent is measured from (m).
+    pub surface_height: f64,
+    /// Steps to hold still after pouring. Default 20.
+    #[serde(default = "default_settle")]
+    pub settle_steps: usize,
+    /// Direction of the scoop stroke. Default (0, 0, −1).
+    #[serde(default = "default_stroke_dir")]
+    pub stroke_direction: (f64, f64, f64),
+    /// Axis of the scoop rotation. Default (1, 0, 0).
+    #[serde(default = "default_lateral")]
+    pub lateral_axis: (f64, f64, f64),
+    /// Direction of transport. Default (1, 0, 0).
+    #[serde(default = "default_transport_dir")]
+    pub transport_direction: (f64, f64, f64),
+    /// Axis of the pour rotation. Default (0, 0, 1).
+    #[serde(default = "default_pour_axis")]
+    pub pour_axis: (f64, f64, f64),
+}
+
+fn default_settle() -> usize {
+    20
+}
+fn default_stroke_dir() -> (f64, f64, f64) {
+    (0.0, 0.0, -1.0)
+}
+fn default_lateral() -> (f64, f64, f64) {
+    (1.0, 0.0, 0.0)
+}
+fn default_transport_dir() -> (f64, f64, f64) {
+    (1.0, 0.0, 0.0)
+}
+fn default_pour_axis() -> (f64, f64, f64) {
+    (0.0, 0.0, 1.0)
+}
+
+/// Maps θ ∈ [−1, 1] into `[lo, hi]`.
+#[inline]
+pub fn map_range(theta: f64, (lo, hi): (f64, f64)) -> f64 {
+    lo + 0.5 * (theta + 1.0) * (hi - lo)
+}
+
+/// Number of steps for a displacement at a speed: `max(1, round(|d|/(s·Δt)))`.
+#[inline]
+pub fn phase_steps(distance: f64, speed: f64, dt: f64) -> usize {
+    ((distance.abs() / (speed * dt)).round() as usize).max(1)
+}
+
+/// The six phases, in order.
+pub const PHASES: [&str; 6] = ["descend", "scoop", "lift", "transport", "pour", "settle"];
+
+impl SkillSpec {
+    pub fn validate(&self) -> Result<(), FieldError> {
+        for (k, t) in self.theta.iter().enumerate() {
+            if !(-1.0..=1.0).contains(t) {
+                return Err(FieldError::new(
+                    format!("theta[{k}]"),
+                    t.to_string(),
+                    "in [-1, 1]",
+                ));
+            }
+        }
+        let r = &self.ranges;
+        for (name, (lo, hi)) in [
+            ("ranges.scoop_depth", r.scoop_depth),
+            ("ranges.scoop_angle_deg", r.scoop_angle_deg),
+            ("ranges.lift_height", r.lift_height),
+            ("ranges.transport_distance", r.transport_distance),
+            ("ranges.pour_angle_deg", r.pour_angle_deg),
+        ] {
+            if !(lo.is_finite() && hi.is_finite() && lo <= hi) {
+                return Err(FieldError::new(
+                    name,
+                    format!("({lo}, {hi})"),
+                    "(min, max) with min <= max, both finite",
+                ));
+            }
+        }
+        if !(r.scoop_depth.0 >= 0.0) {
+            return Err(FieldError::new(
+                "ranges.scoop_depth",
+                format!("{:?}", r.scoop_depth),
+                "a non-negative depth range (m)",
+            ));
+        }
+        for (name, v) in [
+            ("linear_speed", self.linear_speed),
+            ("angular_speed_deg", self.angular_speed_deg),
+        ] {
+            if !(v > 0.0 && v.is_finite()) {
+                return Err(FieldError::new(name, v.to_string(), "> 0"));
+            }
+        }
+        if !(self.scoop_stroke >= 0.0 && self.scoop_stroke.is_finite()) {
+            return Err(FieldError::new(
+                "scoop_stroke",
+                self.scoop_stroke.to_string(),
+                ">= 0 m",
+            ));
+        }
+        for (name, a) in [
+            ("stroke_direction", self.stroke_direction),
+            ("lateral_axis", self.lateral_axis),
+            ("transport_direction", self.transport_direction),
+            ("pour_axis", self.pour_axis),
+        ] {
+            let v = DVec3::from(a);
+            if !(v.length() > 0.0 && v.is_finite()) {
+                return Err(FieldError::new(
+                    name,
+                    format!("{a:?}"),
+                    "a non-zero finite vector",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Physical values of the five parameters: depth (m), scoop angle (rad), lift (m),
+    /// transport (m), pour angle (rad).
+    pub fn values(&self) -> [f64; 5] {
+        let r = &self.ranges;
+        let t = self.theta;
+        [
+            map_range(t[0], r.scoop_depth),
+            map_range(t[1], r.scoop_angle_deg).to_radians(),
+            map_range(t[2], r.lift_height),
+            map_range(t[3], r.transport_distance),
+            map_range(t[4], r.pour_angle_deg).to_radians(),
+        ]
+    }
+
+    /// Per-step controls for a spoon whose bowl bottom starts at height `bottom_y`, with the
+    /// number of steps of each phase.
+    pub fn controls(&self, dt: f64, bottom_y: f64) -> (Vec<[f64; 6]>, [usize; 6]) {
+        let [depth, scoop, lift, transport, pour] = self.values();
+        let v = self.linear_speed;
+        let w = self.angular_speed_deg.to_radians();
+        let unit = |a: (f64, f64, f64)| DVec3::from(a).normalize();
+        let mut out = Vec::new();
+        let mut counts = [0usize; 6];
+        let mut push = |phase: usize, n: usize, t: DVec3, r: DVec3| {
+            counts[phase] = n;
+            let (t, r) = (t / n as f64, r / n as f64);
+            out.extend(std::iter::repeat_n([t.x, t.y, t.z, r.x, r.y, r.z], n));
+        };
+        let descent = (bottom_y - self.surface_height) + depth;
+        push(
+            0,
+            phase_steps(descent, v, dt),
+            DVec3::new(0.0, -descent, 0.0),
+            DVec3::ZERO,
+        );
+        let n = phase_steps(self.scoop_stroke, v, dt).max(phase_steps(scoop, w, dt));
+        push(
+            1,
+            n,
+            unit(self.stroke_direction) * self.scoop_stroke,
+            unit(self.lateral_axis) * scoop,
+        );
+        push(
+            2,
+            phase_steps(lift, v, dt),
+            DVec3::new(0.0, lift, 0.0),
+            DVec3::ZERO,
+        );
+        push(
+            3,
+            phase_steps(transport, v, dt),
+            unit(self.transport_direction) * transport,
+            DVec3::ZERO,
+        );
+        push(
+            4,
+            phase_steps(pour, w, dt),
+            DVec3::ZERO,
+            unit(self.pour_axis) * pour,
+        );
+        counts[5] = self.settle_steps;
+        out.extend(std::iter::repeat_n([0.0; 6], self.settle_steps));
+        (out, counts)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec() -> SkillSpec {
+        SkillSpec {
+            theta: [0.0, 0.5, -0.5, 1.0, -1.0],
+            ranges: SkillRanges {
+                scoop_depth: (0.005, 0.02),
+                scoop_angle_deg: (10.0, 60.0),
+                lift_height: (0.03, 0.08),
+                transport_distance: (0.08, 0.16),
+                pour_angle_deg: (60.0, 150.0),
+            },
+            linear_speed: 0.1,
+            angular_speed_deg: 90.0,
+            scoop_stroke: 0.02,
+            surface_height: 0.03,
+            settle_steps: 5,
+            stroke_direction: default_stroke_dir(),
+            lateral_axis: default_lateral(),
+            transport_direction: default_transport_dir(),
+            pour_axis: default_pour_axis(),
+        }
+    }
+
+    #[test]
+    fn total_displacement_is_exact() {
+        let s = spec();
+        let (u, counts) = s.controls(0.01, 0.05);
+        assert_eq!(u.len(), counts.iter().sum::<usize>());
+        let total: DVec3 = u.iter().map(|c| DVec3::new(c[0], c[1], c[2])).sum();
+        let [depth, _, lift, transport, _] = s.values();
+        let expect = DVec3::new(transport, -(0.05 - 0.03 + depth) + lift, -0.02);
+        assert!((total - expect).length() < 1e-14, "{total} vs {expect}");
+        assert!((s.values()[3] - 0.16).abs() < 1e-15);
+    }
+}

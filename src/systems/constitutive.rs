@@ -1,0 +1,83 @@
+//! Stage 4, constitutive model: the material's update in principal space gives the new
+//! `F = U·diag(σ′)·Vᵀ` (or keeps `F_tmp` when the material has no plasticity) and the Kirchhoff
+//! stress `τ = U·diag(τ_p)·Uᵀ`, folded into the MLS-MPM affine term
+//! `A_p = m_p·C_p − Δt·V_p·(4/dx²)·τ_p`.
+//!
+//! One instance of [`constitutive_model`] runs per material plug-in in the scene.
+//! Reads `SvdFactors`, `TrialDeformation`, `AffineVelocity`, the material; writes
+//! `DeformationGradient`, `P2gAffine`, `Hardening`; reports non-finite stress to `Health`.
+
+use crate::components::*;
+use crate::materials::Material;
+use crate::systems::first_nonfinite_mat;
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// Reassembles `U·diag(d)·Wᵀ`.
+#[inline(always)]
+pub fn compose(u: DMat3, d: DVec3, w: DMat3) -> DMat3 {
+    DMat3::from_cols(u.x_axis * d.x, u.y_axis * d.y, u.z_axis * d.z) * w.transpose()
+}
+
+#[allow(clippy::type_complexity)]
+pub fn constitutive_model<M: Material>(
+    params: Res<SimParams>,
+    grid: Res<Grid>,
+    mut health: ResMut<Health>,
+    mut bodies: Query<(
+        &M,
+        &Body,
+        &SvdFactors,
+        &TrialDeformation,
+        &AffineVelocity,
+        &mut DeformationGradient,
+        &mut P2gAffine,
+        Option<&mut Hardening>,
+    )>,
+) {
+    let dt = params.dt_sub;
+    let inv_dx2 = 1.0 / (grid.dx * grid.dx);
+    for (mat, body, svd, ft, c, mut f, mut aff, hard) in &mut bodies {
+        let stress_coef = -dt * body.particle_volume * 4.0 * inv_dx2;
+        let mass = body.particle_mass;
+        let update = |i: usize, q: &mut f64, f_out: &mut DMat3, a_out: &mut DMat3| {
+            let (s_new, tau_p) = mat.update(svd.s[i], q);
+            *f_out = match s_new {
+                Some(s) => compose(svd.u[i], s, svd.v[i]),
+                None => ft.0[i],
+            };
+            let tau = compose(svd.u[i], tau_p, svd.u[i]);
+            *a_out = tau * stress_coef + c.0[i] * mass;
+        };
+        match hard {
+            Some(mut h) => {
+                h.0.par_iter_mut()
+                    .zip(f.0.par_iter_mut().zip(aff.0.par_iter_mut()))
+                    .enumerate()
+                    .for_each(|(i, (q, (fo, ao)))| update(i, q, fo, ao));
+            }
+            None => {
+                f.0.par_iter_mut()
+                    .zip(aff.0.par_iter_mut())
+                    .enumerate()
+                    .for_each(|(i, (fo, ao))| update(i, &mut 0.0, fo, ao));
+            }
+        }
+        for (field, idx) in [
+            ("F", first_nonfinite_mat(&f.0)),
+            ("stress", first_nonfinite_mat(&aff.0)),
+        ] {
+            if let Some(i) = idx {
+                let value = if field == "F" { f.0[i] } else { aff.0[i] };
+                health.report(Fault {
+                    stage: "constitutive",
+                    field,
+                    owner: format!("body '{}' particle", body.name),
+                    index: i,
+                    value: format!("{value:?}"),
+                });
+            }
+        }
+    }
+}

@@ -1,0 +1,62 @@
+//! Stage 9, G2P: gather particle velocity and the APIC affine velocity
+//!
+//! ```text
+//! v_p = Σ_i w_ip·v_i,    C_p = (4/dx²)·Σ_i w_ip·v_i·(x_i − x_p)ᵀ
+//! ```
+//!
+//! A gather: each particle reads its 27 nodes, so it is trivially parallel and deterministic.
+//! Reads `Grid`, `Position`; writes `Velocity`, `AffineVelocity`.
+
+use crate::components::*;
+use crate::math::kernel::stencil;
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// Gathers `(v_p, C_p)` for a particle at `x`.
+#[inline(always)]
+pub fn gather(grid: &Grid, x: DVec3) -> (DVec3, DMat3) {
+    let dx = grid.dx;
+    let st = stencil((x - grid.origin) / dx);
+    let [bi, bj, bk] = st.base;
+    let mut v = DVec3::ZERO;
+    let mut c = DMat3::ZERO;
+    for a in 0..3 {
+        let wa = st.w[0][a];
+        let da = (a as f64 - st.fx.x) * dx;
+        for b in 0..3 {
+            let wab = wa * st.w[1][b];
+            let db = (b as f64 - st.fx.y) * dx;
+            let base = grid.index(bi + a, bj + b, bk);
+            for k in 0..3 {
+                let w = wab * st.w[2][k];
+                let vi = grid.velocity[base + k];
+                let dpos = DVec3::new(da, db, (k as f64 - st.fx.z) * dx);
+                v += w * vi;
+                c += DMat3::from_cols(vi * (w * dpos.x), vi * (w * dpos.y), vi * (w * dpos.z));
+            }
+        }
+    }
+    (v, c * (4.0 / (dx * dx)))
+}
+
+pub fn g2p(
+    grid: Res<Grid>,
+    mut health: ResMut<Health>,
+    mut bodies: Query<(&Body, &Position, &mut Velocity, &mut AffineVelocity)>,
+) {
+    for (body, x, mut v, mut c) in &mut bodies {
+        v.0.par_iter_mut()
+            .zip(c.0.par_iter_mut().zip(x.0.par_iter()))
+            .for_each(|(v, (c, x))| (*v, *c) = gather(&grid, *x));
+        if let Some(i) = crate::systems::first_nonfinite_vec(&v.0) {
+            health.report(Fault {
+                stage: "g2p",
+                field: "v",
+                owner: format!("body '{}' particle", body.name),
+                index: i,
+                value: format!("{:?}", v.0[i]),
+            });
+        }
+    }
+}

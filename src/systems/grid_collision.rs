@@ -1,0 +1,69 @@
+//! Stage 8, grid collision: rigid colliders (tools, containers), then the domain walls.
+//!
+//! For a node at `x_i` with `φ(x_i) < band` against a collider, the velocity gets the contact
+//! response of `crate::math::contact` with the SDF gradient as the normal and the collider's
+//! rigid velocity at `x_i` (so friction acts on the velocity relative to the tool). Domain walls
+//! act on the outer `cells` node layers of each face with the axis as the normal.
+//!
+//! Reads `Collider`, `ColliderPose`, `DomainWalls`, `SimParams`; writes `Grid::velocity`.
+
+use crate::components::*;
+use crate::math::contact::contact_response;
+use bevy_ecs::prelude::*;
+use glam::DVec3;
+use rayon::prelude::*;
+
+pub fn collider_contact(
+    params: Res<SimParams>,
+    mut grid: ResMut<Grid>,
+    colliders: Query<(&Collider, &ColliderPose)>,
+) {
+    let mut cs: Vec<_> = colliders.iter().collect();
+    cs.sort_by_key(|c| c.0.index);
+    let m_min = params.empty_node_mass;
+    let g = &mut *grid;
+    let (origin, dx, n) = (g.origin, g.dx, g.n);
+    g.velocity
+        .par_iter_mut()
+        .zip(g.mass.par_iter())
+        .enumerate()
+        .for_each(|(idx, (v, &m))| {
+            if m <= m_min {
+                return;
+            }
+            let k = idx % n[2];
+            let j = (idx / n[2]) % n[1];
+            let i = idx / (n[1] * n[2]);
+            let x = origin + DVec3::new(i as f64, j as f64, k as f64) * dx;
+            for (c, pose) in &cs {
+                let reach = c.shape.bounding_radius() + c.band;
+                if (x - pose.pose.translation).length_squared() > reach * reach {
+                    continue;
+                }
+                let (phi, normal) = pose.sdf(&c.shape, x);
+                if phi < c.band {
+                    *v = contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
+                }
+            }
+        });
+}
+
+pub fn domain_walls(walls: Res<DomainWalls>, mut grid: ResMut<Grid>) {
+    let g = &mut *grid;
+    let n = g.n;
+    let cells = walls.cells;
+    g.velocity.par_iter_mut().enumerate().for_each(|(idx, v)| {
+        let coord = [idx / (n[1] * n[2]), (idx / n[2]) % n[1], idx % n[2]];
+        for a in 0..3 {
+            let mut normal = DVec3::ZERO;
+            if coord[a] < cells {
+                normal[a] = 1.0;
+            } else if coord[a] + cells >= n[a] {
+                normal[a] = -1.0;
+            } else {
+                continue;
+            }
+            *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
+        }
+    });
+}

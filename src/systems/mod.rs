@@ -1,0 +1,225 @@
+//! Forward stages of one substep, one file per stage, each a bevy_ecs system.
+//!
+//! The stage order (DESIGN §2) is encoded by the chained [`Stage`] sets:
+//! grid reset → deformation update → SVD → constitutive model → P2G → tool move → gravity →
+//! grid collision → G2P → particle collision → advect.
+//!
+//! The schedule is assembled from a [`SubstepPlan`] derived from the scene: a stage whose work
+//! the scene does not need is not added (no tool: no tool move; no collider: no collider
+//! contact; no thin-walled collider: no particle collision; one constitutive system per
+//! material plug-in the scene uses).
+
+pub mod advect;
+pub mod constitutive;
+pub mod deformation_update;
+pub mod g2p;
+pub mod gravity;
+pub mod grid_collision;
+pub mod grid_reset;
+pub mod p2g;
+pub mod particle_collision;
+pub mod svd;
+pub mod tool_move;
+
+use crate::materials::MaterialSpec;
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::{ExecutorKind, LogLevel, ScheduleBuildSettings, ScheduleLabel};
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// The substep schedule.
+#[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Substep;
+
+/// The stages of a substep, in run order.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Stage {
+    GridReset,
+    DeformationUpdate,
+    Svd,
+    Constitutive,
+    P2g,
+    ToolMove,
+    Gravity,
+    GridCollision,
+    G2p,
+    ParticleCollision,
+    Advect,
+}
+
+impl Stage {
+    pub const ALL: [Stage; 11] = [
+        Stage::GridReset,
+        Stage::DeformationUpdate,
+        Stage::Svd,
+        Stage::Constitutive,
+        Stage::P2g,
+        Stage::ToolMove,
+        Stage::Gravity,
+        Stage::GridCollision,
+        Stage::G2p,
+        Stage::ParticleCollision,
+        Stage::Advect,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::GridReset => "grid_reset",
+            Stage::DeformationUpdate => "deformation_update",
+            Stage::Svd => "svd",
+            Stage::Constitutive => "constitutive",
+            Stage::P2g => "p2g",
+            Stage::ToolMove => "tool_move",
+            Stage::Gravity => "gravity",
+            Stage::GridCollision => "grid_collision",
+            Stage::G2p => "g2p",
+            Stage::ParticleCollision => "particle_collision",
+            Stage::Advect => "advect",
+        }
+    }
+}
+
+/// Orders the constitutive systems of several materials within their stage.
+#[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct MaterialSlot(pub usize);
+
+/// What a scene needs from the substep.
+#[derive(Clone, Debug, Default)]
+pub struct SubstepPlan {
+    /// One spec per distinct material plug-in used by the scene's bodies.
+    pub materials: Vec<MaterialSpec>,
+    /// At least one kinematic tool.
+    pub has_tools: bool,
+    /// At least one tool or container.
+    pub has_colliders: bool,
+    /// At least one collider with particle contact (thin walls).
+    pub particle_contact: bool,
+}
+
+/// Adds the systems of one stage to `schedule`, in the stage's set. Returns whether any was added.
+pub fn add_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> bool {
+    match stage {
+        Stage::GridReset => {
+            schedule.add_systems(grid_reset::grid_reset.in_set(stage));
+        }
+        Stage::DeformationUpdate => {
+            schedule.add_systems(deformation_update::deformation_update.in_set(stage));
+        }
+        Stage::Svd => {
+            schedule.add_systems(svd::svd.in_set(stage));
+        }
+        Stage::Constitutive => {
+            if plan.materials.is_empty() {
+                return false;
+            }
+            // Materials touch disjoint bodies, but the ECS cannot know that: order them.
+            for (i, m) in plan.materials.iter().enumerate() {
+                schedule.add_systems(
+                    m.constitutive_system()
+                        .in_set(stage)
+                        .in_set(MaterialSlot(i)),
+                );
+                if i > 0 {
+                    schedule.configure_sets(MaterialSlot(i - 1).before(MaterialSlot(i)));
+                }
+            }
+        }
+        Stage::P2g => {
+            schedule.add_systems(p2g::p2g.in_set(stage));
+        }
+        Stage::ToolMove => {
+            if !plan.has_tools {
+                return false;
+            }
+            schedule.add_systems(tool_move::tool_move.in_set(stage));
+        }
+        Stage::Gravity => {
+            schedule.add_systems(gravity::gravity.in_set(stage));
+        }
+        Stage::GridCollision => {
+            if plan.has_colliders {
+                schedule.add_systems(
+                    (
+                        grid_collision::collider_contact,
+                        grid_collision::domain_walls,
+                    )
+                        .chain()
+                        .in_set(stage),
+                );
+            } else {
+                schedule.add_systems(grid_collision::domain_walls.in_set(stage));
+            }
+        }
+        Stage::G2p => {
+            schedule.add_systems(g2p::g2p.in_set(stage));
+        }
+        Stage::ParticleCollision => {
+            if !plan.particle_contact {
+                return false;
+            }
+            schedule.add_systems(particle_collision::particle_collision.in_set(stage));
+        }
+        Stage::Advect => {
+            schedule.add_systems(advect::advect.in_set(stage));
+        }
+    }
+    true
+}
+
+/// A new single-threaded schedule (parallelism is inside systems, over particles) with
+/// ambiguity detection as an error, so two unordered systems writing the same data fail to build.
+pub fn new_schedule() -> Schedule {
+    let mut s = Schedule::new(Substep);
+    s.set_executor_kind(ExecutorKind::SingleThreaded);
+    s.set_build_settings(ScheduleBuildSettings {
+        ambiguity_detection: LogLevel::Error,
+        ..Default::default()
+    });
+    s
+}
+
+/// The whole substep as one schedule with chained stage sets.
+pub fn build_substep_schedule(plan: &SubstepPlan) -> Schedule {
+    let mut s = new_schedule();
+    s.configure_sets(
+        (
+            Stage::GridReset,
+            Stage::DeformationUpdate,
+            Stage::Svd,
+            Stage::Constitutive,
+            Stage::P2g,
+            Stage::ToolMove,
+            Stage::Gravity,
+            Stage::GridCollision,
+            Stage::G2p,
+            Stage::ParticleCollision,
+            Stage::Advect,
+        )
+            .chain(),
+    );
+    for stage in Stage::ALL {
+        add_stage(&mut s, stage, plan);
+    }
+    s
+}
+
+/// One schedule per stage, for per-stage timing (`powderlab bench`). Same systems, same order.
+pub fn build_stage_schedules(plan: &SubstepPlan) -> Vec<(&'static str, Schedule)> {
+    Stage::ALL
+        .iter()
+        .filter_map(|&stage| {
+            let mut s = new_schedule();
+            add_stage(&mut s, stage, plan).then_some((stage.name(), s))
+        })
+        .collect()
+}
+
+/// Index of the first non-finite vector, found deterministically in parallel.
+pub fn first_nonfinite_vec(xs: &[DVec3]) -> Option<usize> {
+    xs.par_iter().position_first(|v| !v.is_finite())
+}
+
+/// Index of the first non-finite matrix.
+pub fn first_nonfinite_mat(xs: &[DMat3]) -> Option<usize> {
+    xs.par_iter().position_first(|m| !m.is_finite())
+}

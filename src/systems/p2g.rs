@@ -1,0 +1,163 @@
+//! Stage 5, P2G: MLS-MPM/APIC scatter with quadratic B-splines (Hu et al. 2018):
+//!
+//! ```text
+//! m_i    += Σ_p w_ip·m_p
+//! (mv)_i += Σ_p w_ip·(m_p·v_p + A_p·(x_i − x_p)),   A_p = m_p·C_p − Δt·V_p·(4/dx²)·τ_p
+//! v_i     = (mv)_i / m_i   where m_i > m_min, else 0
+//! ```
+//!
+//! **Race-free, fixed-order scatter.** Particles are bucketed by the x-slab of their stencil
+//! base (slabs of [`SLAB`] = 4 x-planes; a stencil spans 3 planes). Even slabs touch disjoint
+//! node ranges, and so do odd slabs, so the scatter runs in two parallel phases (even, then
+//! odd), each slab sequentially in particle order. The grid is x-major, so a slab's nodes are one
+//! contiguous range and the phases split the arrays with safe `par_chunks_mut`. The summation
+//! order of every node is fixed by the scene, not by the thread count: results are bitwise
+//! identical for any number of threads.
+//!
+//! Reads `Body`, `Position`, `Velocity`, `P2gAffine`; writes `Grid` and `ScatterOrder`.
+
+use crate::components::*;
+use crate::math::kernel::stencil;
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// Width of a scatter slab in x-planes of base nodes. Must be ≥ 3 (the stencil width).
+pub const SLAB: usize = 4;
+
+/// Buckets particles by slab (a stable counting sort, so the order is deterministic).
+pub fn bin_by_slab(grid: &Grid, x: &[DVec3], out: &mut ScatterOrder) {
+    let n_slabs = grid.n[0].div_ceil(SLAB);
+    out.counts.clear();
+    out.counts.resize(n_slabs, 0);
+    out.order.resize(x.len(), 0);
+    out.slab_start.clear();
+    out.slab_start.resize(n_slabs + 1, 0);
+    let inv_dx = 1.0 / grid.dx;
+    let slab_of = |p: &DVec3| -> usize {
+        let b = ((p.x - grid.origin.x) * inv_dx - 0.5).floor() as usize;
+        b / SLAB
+    };
+    for p in x {
+        out.counts[slab_of(p)] += 1;
+    }
+    let mut acc = 0u32;
+    for s in 0..n_slabs {
+        out.slab_start[s] = acc;
+        acc += out.counts[s];
+    }
+    out.slab_start[n_slabs] = acc;
+    // Reuse `counts` as the running insertion cursor of each slab.
+    out.counts.copy_from_slice(&out.slab_start[..n_slabs]);
+    for (i, p) in x.iter().enumerate() {
+        let s = slab_of(p);
+        out.order[out.counts[s] as usize] = i as u32;
+        out.counts[s] += 1;
+    }
+}
+
+/// Scatters one particle into node arrays that start at x-plane `plane0`.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn scatter_particle(
+    grid_origin: DVec3,
+    dx: f64,
+    n: [usize; 3],
+    plane0: usize,
+    mass_chunk: &mut [f64],
+    mom_chunk: &mut [DVec3],
+    x: DVec3,
+    mv: DVec3,
+    affine: DMat3,
+    m: f64,
+) {
+    let st = stencil((x - grid_origin) / dx);
+    let [bi, bj, bk] = st.base;
+    for a in 0..3 {
+        let wa = st.w[0][a];
+        let dxa = (a as f64 - st.fx.x) * dx;
+        let row = (bi + a - plane0) * n[1];
+        for b in 0..3 {
+            let wab = wa * st.w[1][b];
+            let dya = (b as f64 - st.fx.y) * dx;
+            let col = (row + bj + b) * n[2] + bk;
+            for c in 0..3 {
+                let w = wab * st.w[2][c];
+                let dpos = DVec3::new(dxa, dya, (c as f64 - st.fx.z) * dx);
+                let idx = col + c;
+                mom_chunk[idx] += w * (mv + affine * dpos);
+                mass_chunk[idx] += w * m;
+            }
+        }
+    }
+}
+
+pub fn p2g(
+    params: Res<SimParams>,
+    mut grid: ResMut<Grid>,
+    mut health: ResMut<Health>,
+    mut bodies: Query<(&Body, &Position, &Velocity, &P2gAffine, &mut ScatterOrder)>,
+) {
+    let mut bodies: Vec<_> = bodies.iter_mut().collect();
+    bodies.sort_by_key(|b| b.0.index);
+    let g = &mut *grid;
+    let (origin, dx, n) = (g.origin, g.dx, g.n);
+    let pl = g.plane_len();
+    for (body, x, v, aff, mut order) in bodies {
+        bin_by_slab(g, &x.0, &mut order);
+        let m = body.particle_mass;
+        let order = &*order;
+        let scatter_slab = |slab: usize, plane0: usize, mc: &mut [f64], pc: &mut [DVec3]| {
+            if slab + 1 >= order.slab_start.len() {
+                return;
+            }
+            let (s, e) = (
+                order.slab_start[slab] as usize,
+                order.slab_start[slab + 1] as usize,
+            );
+            for &p in &order.order[s..e] {
+                let p = p as usize;
+                scatter_particle(
+                    origin,
+                    dx,
+                    n,
+                    plane0,
+                    mc,
+                    pc,
+                    x.0[p],
+                    v.0[p] * m,
+                    aff.0[p],
+                    m,
+                );
+            }
+        };
+        let chunk = 2 * SLAB * pl;
+        // Even slabs: chunk k holds x-planes [8k, 8k+8) and is written only by slab 2k.
+        g.mass
+            .par_chunks_mut(chunk)
+            .zip(g.momentum.par_chunks_mut(chunk))
+            .enumerate()
+            .for_each(|(k, (mc, pc))| scatter_slab(2 * k, 2 * SLAB * k, mc, pc));
+        // Odd slabs: shifted by SLAB planes, chunk k holds [8k+4, 8k+12), written by slab 2k+1.
+        let off = (SLAB * pl).min(g.mass.len());
+        g.mass[off..]
+            .par_chunks_mut(chunk)
+            .zip(g.momentum[off..].par_chunks_mut(chunk))
+            .enumerate()
+            .for_each(|(k, (mc, pc))| scatter_slab(2 * k + 1, 2 * SLAB * k + SLAB, mc, pc));
+    }
+    let m_min = params.empty_node_mass;
+    g.velocity
+        .par_iter_mut()
+        .zip(g.mass.par_iter().zip(g.momentum.par_iter()))
+        .for_each(|(v, (&m, &p))| *v = if m > m_min { p / m } else { DVec3::ZERO });
+    if let Some(i) = crate::systems::first_nonfinite_vec(&g.velocity) {
+        health.report(Fault {
+            stage: "p2g",
+            field: "grid velocity",
+            owner: "grid node".into(),
+            index: i,
+            value: format!("{:?}", g.velocity[i]),
+        });
+    }
+}

@@ -1,0 +1,326 @@
+//! Validation against exact solutions and published experiments (`shared/validation`).
+//!
+//! Cases:
+//! - `free_fall`: exact, `x = x₀ + v₀t + ½g·t(t + Δt_sub)` and `v = v₀ + g·t` (symplectic Euler);
+//! - `column_collapse`: planar granular column collapse, run-out against Lube et al. 2005
+//!   (`ΔL/L₀ ≈ 1.2a` for small `a`, `≈ 1.9a^(2/3)` for large `a`), log–log slopes per band,
+//!   and the arrest time in units of `T_c = √(H₀/g)`.
+
+use crate::scene::Scene;
+use crate::sim::{SimOptions, Simulation};
+use glam::DVec3;
+use serde::Serialize;
+use std::path::Path;
+
+/// One checked quantity.
+#[derive(Clone, Debug, Serialize)]
+pub struct Check {
+    pub case: String,
+    pub quantity: String,
+    pub measured: f64,
+    pub published: f64,
+    /// Meaning depends on `kind`: relative error bound, absolute band half-width, or factor.
+    pub tolerance: f64,
+    pub kind: &'static str,
+    pub passed: bool,
+    pub note: String,
+}
+
+fn parse(src: &str, name: &str) -> anyhow::Result<Scene> {
+    Ok(Scene::parse(src, Path::new(&format!("<validate:{name}>")))?)
+}
+
+/// Relative tolerance of the free-fall check in f64: the grid transfer sums 27 weights per
+/// node and per particle, so round-off is a few hundred ulps of the displacement at most.
+pub const FREE_FALL_REL_TOL: f64 = 1e-12;
+
+/// Free fall of an elastic block: the largest relative position and velocity errors.
+pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
+    // empty_node_ratio 0: every node touched by a particle is used, so the partition of unity
+    // is exact (a threshold drops nodes of weight < 1e-6 and costs ~1e-6 relative error).
+    let src = r#"Scene(
+        simulation: (cells: (24, 40, 24), dx: 0.01, dt: 0.01, substeps: 10, steps: Some(20),
+                     stability: Strict, empty_node_ratio: 0.0),
+        materials: { "jelly": Elastic((density: 1000.0, youngs_modulus: 1e4)) },
+        bodies: [(name: "block", material: "jelly",
+                  fill: Box(min: (0.08, 0.25, 0.08), max: (0.16, 0.33, 0.16)),
+                  velocity: (0.1, 0.5, -0.05))],
+    )"#;
+    let scene = parse(src, "free_fall")?;
+    let mut sim = Simulation::new(
+        &scene,
+        &SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    let x0 = sim.body_states()[0].x.clone();
+    let v0 = DVec3::new(0.1, 0.5, -0.05);
+    let g = DVec3::new(0.0, -9.81, 0.0);
+    sim.run(sim.horizon, |_| {})?;
+    let p = sim.params().clone();
+    let t = sim.horizon as f64 * p.dt;
+    let st = &sim.body_states()[0];
+    let disp = v0 * t + 0.5 * g * t * (t + p.dt_sub);
+    let v_exact = v0 + g * t;
+    let mut ex: f64 = 0.0;
+    let mut ev: f64 = 0.0;
+    for (k, x) in st.x.iter().enumerate() {
+        ex = ex.max((*x - (x0[k] + disp)).length() / disp.length());
+        ev = ev.max((st.v[k] - v_exact).length() / v_exact.length());
+    }
+    Ok(vec![
+        Check {
+            case: "free_fall".into(),
+            quantity: "max relative position error".into(),
+            measured: ex,
+            published: 0.0,
+            tolerance: FREE_FALL_REL_TOL,
+            kind: "abs<=tol",
+            passed: ex <= FREE_FALL_REL_TOL,
+            note: format!(
+                "{} particles, {} substeps, exact law x0 + v0 t + g t (t + dt)/2",
+                st.x.len(),
+                sim.clock().total_substeps
+            ),
+        },
+        Check {
+            case: "free_fall".into(),
+            quantity: "max relative velocity error".into(),
+            measured: ev,
+            published: 0.0,
+            tolerance: FREE_FALL_REL_TOL,
+            kind: "abs<=tol",
+            passed: ev <= FREE_FALL_REL_TOL,
+            note: "v = v0 + g t".into(),
+        },
+    ])
+}
+
+/// Settings of one planar column collapse.
+#[derive(Clone, Copy, Debug)]
+pub struct Collapse {
+    /// Aspect ratio H₀/L₀.
+    pub aspect: f64,
+    /// Grid cells across the column length L₀.
+    pub cells_across: usize,
+    /// Column length L₀ (m).
+    pub length: f64,
+    /// Klár friction angle (degrees). 22° gives a plane-strain friction angle of 30°.
+    pub friction_deg: f64,
+    /// E/(ρ·g·H₀): fixed, so columns of any size are similar (Drucker–Prager has no length).
+    pub stiffness_ratio: f64,
+    /// Coulomb friction of the floor.
+    pub floor_friction: f64,
+}
+
+impl Collapse {
+    pub fn new(aspect: f64, cells_across: usize) -> Self {
+        Self {
+            aspect,
+            cells_across,
+            length: 0.05,
+            friction_deg: 22.0,
+            stiffness_ratio: 100.0,
+            floor_friction: 0.577,
+        }
+    }
+}
+
+/// Outcome of one collapse.
+#[derive(Clone, Debug, Serialize)]
+pub struct CollapseResult {
+    pub aspect: f64,
+    pub runout_ratio: f64,
+    /// Time to arrest over `T_c = √(H₀/g)`; `None` if the kinetic energy never fell below
+    /// 1e-6 of the initial potential energy within 6 T_c.
+    pub arrest_tc: Option<f64>,
+    pub particles: usize,
+    pub substeps: u64,
+    pub wall_s: f64,
+    /// Final positions normalised by L₀ (for the scale-invariance check).
+    #[serde(skip)]
+    pub deposit: Vec<DVec3>,
+}
+
+/// The published run-out law (Lube et al. 2005), regime by aspect ratio.
+pub fn lube_runout(a: f64) -> f64 {
+    if a < 2.3 {
+        1.2 * a
+    } else {
+        1.9 * a.powf(2.0 / 3.0)
+    }
+}
+
+/// The RON scene of a planar column collapse (a quasi-2D slab two cells thick between
+/// frictionless walls, on a rough floor).
+pub fn collapse_scene(c: &Collapse) -> String {
+    let dx = c.length / c.cells_across as f64;
+    let h0 = c.aspect * c.length;
+    let wall = 3usize;
+    let predicted = lube_runout(c.aspect) + 1.0;
+    let nx = wall * 2 + (2.0 * predicted * c.cells_across as f64).ceil() as usize + 8;
+    let ny = wall * 2 + (h0 / dx).ceil() as usize + 4;
+    let nz = wall * 2 + 3;
+    let x0 = wall as f64 * dx;
+    let y0 = wall as f64 * dx;
+    let z0 = wall as f64 * dx;
+    let e = c.stiffness_ratio * 1500.0 * 9.81 * h0;
+    format!(
+        r#"Scene(
+    simulation: (cells: ({nx}, {ny}, {nz}), dx: {dx}, dt: 0.005, substeps: 1, stability: Auto,
+                 walls: (cells: {wall}, contact: Separate, friction: 0.0)),
+    materials: {{ "sand": DruckerPrager((density: 1500.0, youngs_modulus: {e}, poisson_ratio: 0.3,
+                                         friction_deg: {phi})) }},
+    bodies: [(name: "column", material: "sand",
+              fill: Column(base: ({x0}, {y0}, {z0}), length: {l0}, aspect: {a}, depth: {depth}))],
+    colliders: [(name: "floor", kind: Container, shape: Plane(normal: (0.0, 1.0, 0.0)),
+                 position: (0.0, {y0}, 0.0), friction: {mu}, particle_contact: false)],
+)"#,
+        phi = c.friction_deg,
+        l0 = c.length,
+        a = c.aspect,
+        depth = 2.0 * dx,
+        mu = c.floor_friction,
+    )
+}
+
+/// Runs one collapse to arrest (or 6 T_c).
+pub fn run_collapse(
+    c: &Collapse,
+    threads: Option<usize>,
+    mut progress: impl FnMut(f64),
+) -> anyhow::Result<CollapseResult> {
+    let start = std::time::Instant::now();
+    let scene = parse(
+        &collapse_scene(c),
+        &format!("column_collapse_a{}", c.aspect),
+    )?;
+    let mut sim = Simulation::new(
+        &scene,
+        &SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    let dx = scene.simulation.dx;
+    let x_wall = 3.0 * dx;
+    let y_floor = 3.0 * dx;
+    let h0 = c.aspect * c.length;
+    let tc = (h0 / 9.81).sqrt();
+    let dt = scene.simulation.dt;
+    let pe0: f64 = sim.body_states()[0]
+        .x
+        .iter()
+        .map(|x| 9.81 * (x.y - y_floor))
+        .sum();
+    let mut arrest = None;
+    let max_steps = (6.0 * tc / dt).ceil() as usize;
+    for k in 1..=max_steps {
+        sim.step()?;
+        let st = sim.body_states();
+        let ke: f64 = st[0].v.iter().map(|v| 0.5 * v.length_squared()).sum();
+        let t = k as f64 * dt;
+        progress(t / (6.0 * tc));
+        if t > tc && ke < 1e-6 * pe0 {
+            arrest = Some(t / tc);
+            break;
+        }
+    }
+    let st = sim.body_states();
+    let mut xs: Vec<f64> = st[0].x.iter().map(|x| x.x - x_wall).collect();
+    xs.sort_by(f64::total_cmp);
+    let front = xs[((xs.len() as f64 * 0.99) as usize).min(xs.len() - 1)];
+    Ok(CollapseResult {
+        aspect: c.aspect,
+        runout_ratio: (front - c.length) / c.length,
+        arrest_tc: arrest,
+        particles: xs.len(),
+        substeps: sim.clock().total_substeps,
+        wall_s: start.elapsed().as_secs_f64(),
+        deposit: st[0]
+            .x
+            .iter()
+            .map(|x| (*x - DVec3::new(x_wall, y_floor, 0.0)) / c.length)
+            .collect(),
+    })
+}
+
+/// Least-squares slope of `ln y` against `ln x`.
+pub fn loglog_slope(points: &[(f64, f64)]) -> f64 {
+    let n = points.len() as f64;
+    let (sx, sy) = points
+        .iter()
+        .fold((0.0, 0.0), |a, p| (a.0 + p.0.ln(), a.1 + p.1.ln()));
+    let (mx, my) = (sx / n, sy / n);
+    let (num, den) = points.iter().fold((0.0, 0.0), |a, p| {
+        let dx = p.0.ln() - mx;
+        (a.0 + dx * (p.1.ln() - my), a.1 + dx * dx)
+    });
+    num / den
+}
+
+/// Checks of a run-out band: each point within a factor 2 of the law, and the fitted slope.
+pub fn collapse_checks(
+    band: &str,
+    results: &[CollapseResult],
+    slope: f64,
+    slope_tol: f64,
+) -> Vec<Check> {
+    let mut out = Vec::new();
+    for r in results {
+        let law = lube_runout(r.aspect);
+        let factor = (r.runout_ratio / law).max(law / r.runout_ratio);
+        out.push(Check {
+            case: "column_collapse".into(),
+            quantity: format!("run-out ΔL/L0 at a = {}", r.aspect),
+            measured: r.runout_ratio,
+            published: law,
+            tolerance: 2.0,
+            kind: "factor<=tol",
+            passed: r.runout_ratio > 0.0 && factor <= 2.0,
+            note: format!(
+                "{} particles, {} substeps, {:.1} s; arrest at {} T_c",
+                r.particles,
+                r.substeps,
+                r.wall_s,
+                r.arrest_tc.map_or("> 6".to_string(), |t| format!("{t:.2}"))
+            ),
+        });
+    }
+    if results.len() >= 2 {
+        let pts: Vec<(f64, f64)> = results
+            .iter()
+            .map(|r| (r.aspect, r.runout_ratio.max(1e-9)))
+            .collect();
+        let s = loglog_slope(&pts);
+        out.push(Check {
+            case: "column_collapse".into(),
+            quantity: format!("{band}-a log-log slope"),
+            measured: s,
+            published: slope,
+            tolerance: slope_tol,
+            kind: "|m-p|<=tol",
+            passed: (s - slope).abs() <= slope_tol,
+            note: format!(
+                "a = {:?}",
+                results.iter().map(|r| r.aspect).collect::<Vec<_>>()
+            ),
+        });
+    }
+    for r in results {
+        if let Some(t) = r.arrest_tc {
+            out.push(Check {
+                case: "column_collapse".into(),
+                quantity: format!("arrest time / T_c at a = {}", r.aspect),
+                measured: t,
+                published: 3.0,
+                tolerance: 0.0,
+                kind: "in [2, 4.5]",
+                passed: (2.0..=4.5).contains(&t),
+                note: "Lajeunesse et al. 2005: flow stops after about 3 T_c".into(),
+            });
+        }
+    }
+    out
+}
