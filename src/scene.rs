@@ -770,7 +770,7 @@ mod tests {
     #[test]
     fn locate_nested_fields() {
         let src = "Scene(\n  simulation: (dx: 0.1),\n  bodies: [\n    (name: \"a\", x: 1),\n    (name: \"b\", x: 2),\n  ],\n)";
-        assert_eq!(locate(src, "simulation.dx"), (2, 17));
+        assert_eq!(locate(src, "simulation.dx"), (2, 16));
         assert_eq!(locate(src, "bodies[1].x"), (5, 17));
         assert_eq!(locate(src, "bodies[0].name"), (4, 6));
     }

@@ -541,6 +541,29 @@ impl Simulation {
         collider_poses(&mut self.world)
     }
 
+    /// Runs one stage alone (only with `SimOptions::stage_timers`); for benchmarks and tests.
+    /// Returns false if the scene has no such stage.
+    pub fn run_stage(&mut self, name: &str) -> bool {
+        let world = &mut self.world;
+        let Some(stages) = &mut self.stage_schedules else {
+            return false;
+        };
+        match stages.iter_mut().find(|s| s.0 == name) {
+            Some((_, s)) => {
+                self.pool.install(|| s.run(world));
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Names of the stages this scene runs, in order.
+    pub fn stage_names(&self) -> Vec<&'static str> {
+        self.stage_schedules
+            .as_ref()
+            .map_or_else(Vec::new, |s| s.iter().map(|s| s.0).collect())
+    }
+
     /// Per-stage wall time so far (only with `SimOptions::stage_timers`).
     pub fn stage_seconds(&self) -> Vec<(&'static str, f64)> {
         self.world

@@ -228,9 +228,8 @@ pub fn run_collapse(
         }
     }
     let st = sim.body_states();
-    let mut xs: Vec<f64> = st[0].x.iter().map(|x| x.x - x_wall).collect();
-    xs.sort_by(f64::total_cmp);
-    let front = xs[((xs.len() as f64 * 0.99) as usize).min(xs.len() - 1)];
+    let xs: Vec<f64> = st[0].x.iter().map(|x| x.x - x_wall).collect();
+    let front = deposit_front(&xs, dx, 4);
     Ok(CollapseResult {
         aspect: c.aspect,
         runout_ratio: (front - c.length) / c.length,
@@ -244,6 +243,22 @@ pub fn run_collapse(
             .map(|x| (*x - DVec3::new(x_wall, y_floor, 0.0)) / c.length)
             .collect(),
     })
+}
+
+/// The deposit front: the far edge of the furthest x-bin (one cell wide) that holds at least
+/// `min_count` particles. Unlike a percentile of all particles, this follows the thin tip of a
+/// low column's deposit, and a lone particle ahead of the front does not count.
+pub fn deposit_front(xs: &[f64], dx: f64, min_count: usize) -> f64 {
+    let max = xs.iter().copied().fold(0.0, f64::max);
+    let nb = (max / dx).ceil() as usize + 1;
+    let mut counts = vec![0usize; nb];
+    for &x in xs {
+        counts[((x / dx).floor().max(0.0) as usize).min(nb - 1)] += 1;
+    }
+    counts
+        .iter()
+        .rposition(|&c| c >= min_count)
+        .map_or(0.0, |b| (b + 1) as f64 * dx)
 }
 
 /// Least-squares slope of `ln y` against `ln x`.

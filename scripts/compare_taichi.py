@@ -1,0 +1,68 @@
+#!/usr/bin/env python3
+"""Runs powderlab and the Taichi reference on the same sand_box scene, back to back on the
+same machine, and prints both throughputs and their ratio (one JSON object on the last line).
+
+    pip install taichi==1.7.4
+    cargo build --release
+    python3 scripts/compare_taichi.py [--n-grid 48] [--threads 2] [--rounds 1]
+
+Both report particle-substeps per second of the timed forward run, excluding start-up:
+Taichi's JIT warm-up step and powderlab's scene build are outside the timed region.
+"""
+import argparse, json, os, subprocess, sys, pathlib
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+REF = ROOT.parent / "shared" / "reference" / "taichi_mpm_bench.py"
+
+
+def last_json(text):
+    for line in reversed(text.strip().splitlines()):
+        line = line.strip()
+        if line.startswith("{"):
+            return json.loads(line)
+    raise RuntimeError("no JSON line in output:\n" + text[-2000:])
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n-grid", type=int, default=48)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--rounds", type=int, default=1, help="alternate the two this many times")
+    ap.add_argument("--powderlab", default=None, help="path of the powderlab binary")
+    args = ap.parse_args()
+    target = os.environ.get("CARGO_TARGET_DIR", str(ROOT / "target"))
+    exe = args.powderlab or str(pathlib.Path(target) / "release" / "powderlab")
+    scene = ROOT / "scenes" / "sand_box.ron"
+    if args.n_grid != 48:
+        src = scene.read_text()
+        dx = repr(1.0 / args.n_grid)
+        src = src.replace("cells: (48, 48, 48)", f"cells: ({args.n_grid}, {args.n_grid}, {args.n_grid})")
+        src = src.replace("dx: 0.020833333333333332", f"dx: {dx}")
+        scene = pathlib.Path(os.environ.get("TMPDIR", "/tmp")) / f"sand_box_n{args.n_grid}.ron"
+        scene.write_text(src)
+    rows = []
+    for r in range(args.rounds):
+        t = subprocess.run([sys.executable, str(REF), "--n-grid", str(args.n_grid), "--steps", "20",
+                            "--threads", str(args.threads), "--arch", "cpu"],
+                           capture_output=True, text=True, check=True)
+        tj = last_json(t.stdout)
+        p = subprocess.run([exe, "bench", str(scene), "--threads", str(args.threads), "--json"],
+                           capture_output=True, text=True, check=True)
+        pj = last_json(p.stdout)
+        row = {"round": r, "taichi_particle_substeps_per_s": tj["particle_substeps_per_second_forward"],
+               "powderlab_particle_substeps_per_s": pj["particle_substeps_per_s"],
+               "taichi_final_mean_position": tj["final_mean_position"],
+               "powderlab_final_mean_position": pj["final_mean_position_m"],
+               "particles": pj["particles"], "taichi_particles": tj["particles"]}
+        row["ratio"] = row["powderlab_particle_substeps_per_s"] / row["taichi_particle_substeps_per_s"]
+        rows.append(row)
+        print(f"round {r}: taichi {row['taichi_particle_substeps_per_s']/1e6:.3f} M/s, "
+              f"powderlab {row['powderlab_particle_substeps_per_s']/1e6:.3f} M/s, ratio {row['ratio']:.2f}",
+              file=sys.stderr)
+    ratios = sorted(r["ratio"] for r in rows)
+    print(json.dumps({"n_grid": args.n_grid, "threads": args.threads, "rounds": rows,
+                      "median_ratio": ratios[len(ratios) // 2]}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,45 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use powderlab::scene::Scene;
+use powderlab::sim::{SimOptions, Simulation};
+use std::path::{Path, PathBuf};
+
+pub fn scene_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(name)
+}
+
+pub fn load(name: &str) -> Scene {
+    Scene::load(scene_path(name)).unwrap_or_else(|e| panic!("{e}"))
+}
+
+pub fn parse(src: &str) -> Result<Scene, powderlab::error::SceneError> {
+    Scene::parse(src, Path::new("test.ron"))
+}
+
+pub fn build(scene: &Scene, threads: usize) -> Simulation {
+    Simulation::new(
+        scene,
+        &SimOptions {
+            threads: Some(threads),
+            ..Default::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Asserts every particle field is finite.
+pub fn assert_finite(sim: &mut Simulation) {
+    for b in sim.body_states() {
+        for (i, (x, v)) in b.x.iter().zip(&b.v).enumerate() {
+            assert!(
+                x.is_finite() && v.is_finite(),
+                "body {} particle {i}: x {x:?} v {v:?}",
+                b.name
+            );
+        }
+        assert!(b.f.iter().all(|f| f.is_finite()) && b.c.iter().all(|c| c.is_finite()));
+    }
+}

@@ -1,0 +1,62 @@
+//! A recording written by `powderlab simulate --out` opens in the official Rerun CLI
+//! (`rerun rrd stats`, PyPI rerun-sdk==0.36.3) and holds the documented entities.
+#![cfg(feature = "rerun")]
+
+use std::process::Command;
+
+#[test]
+fn recording_opens_in_rerun_and_has_the_entities() {
+    let dir = std::env::temp_dir().join(format!("powderlab-rrd-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("pt.rrd");
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/powder_transport.ron");
+    let st = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(["simulate", scene, "--steps", "4", "--out"])
+        .arg(&out)
+        .status()
+        .unwrap();
+    assert!(st.success());
+    assert!(
+        out.exists(),
+        "the recording is renamed into place when finished"
+    );
+    assert!(!dir.join("pt.rrd.partial").exists());
+    let stats = Command::new("rerun")
+        .args(["rrd", "stats"])
+        .arg(&out)
+        .env("RERUN_ANALYTICS", "0")
+        .output();
+    let stats = match stats {
+        Ok(o) => o,
+        Err(e) => {
+            panic!("the Rerun CLI is needed for this test: pip install rerun-sdk==0.36.3 ({e})")
+        }
+    };
+    let text = String::from_utf8_lossy(&stats.stdout).to_string()
+        + &String::from_utf8_lossy(&stats.stderr);
+    assert!(stats.status.success(), "rerun rrd stats failed: {text}");
+    for entity in [
+        "/world/powder/powder",
+        "/world/tools/spoon",
+        "/world/containers/source_cup",
+        "/world/containers/target_cup",
+        "/metrics/transported_particles",
+        "/metrics/mean_height",
+    ] {
+        assert!(
+            text.contains(entity),
+            "entity {entity} missing from:\n{text}"
+        );
+    }
+    let verify = Command::new("rerun")
+        .args(["rrd", "verify"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(
+        verify.status.success(),
+        "rerun rrd verify: {}",
+        String::from_utf8_lossy(&verify.stderr)
+    );
+    std::fs::remove_dir_all(&dir).ok();
+}
