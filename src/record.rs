@@ -92,7 +92,7 @@ impl Recorder {
     /// Records the current state if the step is a recorded one.
     pub fn frame(&mut self, world: &mut World) -> anyhow::Result<()> {
         let clock = *world.resource::<Clock>();
-        if clock.step % self.every != 0 {
+        if !clock.step.is_multiple_of(self.every) {
             return Ok(());
         }
         let dt = world.resource::<SimParams>().dt;

@@ -590,7 +590,7 @@ fn validate_shape(s: &Shape) -> Result<(), FieldError> {
     match *s {
         Shape::Plane { normal } => {
             let n = DVec3::from(normal);
-            if !(n.length() > 0.0) || !n.is_finite() {
+            if n.length() <= 0.0 || !n.is_finite() {
                 return Err(FieldError::new(
                     "normal",
                     format!("{normal:?}"),

@@ -118,7 +118,7 @@ impl SkillSpec {
                 ));
             }
         }
-        if !(r.scoop_depth.0 >= 0.0) {
+        if r.scoop_depth.0 < 0.0 {
             return Err(FieldError::new(
                 "ranges.scoop_depth",
                 format!("{:?}", r.scoop_depth),

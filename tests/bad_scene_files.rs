@@ -20,7 +20,7 @@ const GOOD: &str = r#"Scene(
 fn error_of(src: &str) -> String {
     let r = Scene::parse(src, Path::new("scenes/bad.ron"))
         .and_then(|s| Simulation::new(&s, &SimOptions::default()).map(|_| ()));
-    let msg = r.err().expect("the scene must be refused").to_string();
+    let msg = r.expect_err("the scene must be refused").to_string();
     println!("{msg}");
     assert!(!msg.contains('\n'), "one line: {msg}");
     assert!(msg.starts_with("scenes/bad.ron:"), "names the file: {msg}");

@@ -33,9 +33,139 @@ pub fn contact_response(v: DVec3, v_body: DVec3, n: DVec3, mode: ContactMode, mu
     }
 }
 
+/// Adjoints of [`contact_response`]'s inputs.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ContactAdj {
+    pub v: DVec3,
+    pub v_body: DVec3,
+    pub n: DVec3,
+    pub mu: f64,
+}
+
+/// Adjoint of [`contact_response`]: `∂L/∂v′` → adjoints of `v`, `v_b`, `n` and `μ`.
+///
+/// Exact inside each regime. The regime switches are kinks, where the gradient is that of the
+/// regime the forward pass took (one-sided): contact on/off (`r_n = 0` under `Separate`, or the
+/// contact band edge in the caller), and Coulomb stick/slip (`1 + μ·r_n/‖r_t‖ = 0`, where the
+/// `max(0, ·)` clamp gives a zero gradient on the sticking side).
+pub fn contact_response_adj(
+    v: DVec3,
+    v_body: DVec3,
+    n: DVec3,
+    mode: ContactMode,
+    mu: f64,
+    g_out: DVec3,
+) -> ContactAdj {
+    let rel = v - v_body;
+    let rn = rel.dot(n);
+    let mut adj = ContactAdj::default();
+    match mode {
+        ContactMode::Sticky => adj.v_body = g_out,
+        ContactMode::Separate if rn >= 0.0 => adj.v = g_out,
+        ContactMode::Slip | ContactMode::Separate => {
+            let vt = rel - rn * n;
+            let len = vt.length();
+            let active = rn < 0.0 && mu > 0.0 && len > 0.0;
+            let raw = if active { 1.0 + mu * rn / len } else { 1.0 };
+            let scale = raw.max(0.0);
+            // out = v_b + scale·vt
+            adj.v_body += g_out;
+            let mut g_vt = g_out * scale;
+            let mut g_rn = 0.0;
+            if active && raw > 0.0 {
+                let g_scale = g_out.dot(vt);
+                adj.mu += g_scale * rn / len;
+                g_rn += g_scale * mu / len;
+                let g_len = -g_scale * mu * rn / (len * len);
+                g_vt += vt * (g_len / len);
+            }
+            // vt = rel − rn·n ;  rn = rel·n ;  rel = v − v_b
+            let mut g_rel = g_vt;
+            g_rn -= g_vt.dot(n);
+            adj.n -= g_vt * rn;
+            g_rel += n * g_rn;
+            adj.n += rel * g_rn;
+            adj.v += g_rel;
+            adj.v_body -= g_rel;
+        }
+    }
+    adj
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// f64 central differences, away from the regime switches.
+    const FD_EPS: f64 = 1e-7;
+    const ADJ_REL_TOL: f64 = 1e-6;
+
+    #[test]
+    fn adjoint_matches_central_differences() {
+        let mut seed = 17u64;
+        let mut r = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        let mut checked = 0;
+        for _ in 0..2000 {
+            let v = DVec3::new(r(), r(), r());
+            let vb = 0.3 * DVec3::new(r(), r(), r());
+            let n = DVec3::new(r(), r(), r()).normalize();
+            let mu = 0.5 * (r() + 1.0);
+            let w = DVec3::new(r(), r(), r());
+            let mode = [
+                ContactMode::Sticky,
+                ContactMode::Slip,
+                ContactMode::Separate,
+            ][checked % 3];
+            let rel = v - vb;
+            let rn = rel.dot(n);
+            let vt = (rel - rn * n).length();
+            // Stay 1e-3 away from the switches r_n = 0 and 1 + μ r_n/‖r_t‖ = 0.
+            if rn.abs() < 1e-3 || (1.0 + mu * rn / vt).abs() < 1e-3 || vt < 1e-3 {
+                continue;
+            }
+            checked += 1;
+            let f = |v: DVec3, vb: DVec3, n: DVec3, mu: f64| {
+                contact_response(v, vb, n, mode, mu).dot(w)
+            };
+            let a = contact_response_adj(v, vb, n, mode, mu, w);
+            let close = |fd: f64, ad: f64, what: &str| {
+                assert!(
+                    (fd - ad).abs() <= ADJ_REL_TOL * fd.abs().max(ad.abs()).max(1e-3),
+                    "{mode:?} {what}: fd {fd} ad {ad}"
+                );
+            };
+            for k in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[k] = FD_EPS;
+                close(
+                    (f(v + e, vb, n, mu) - f(v - e, vb, n, mu)) / (2.0 * FD_EPS),
+                    a.v[k],
+                    "v",
+                );
+                close(
+                    (f(v, vb + e, n, mu) - f(v, vb - e, n, mu)) / (2.0 * FD_EPS),
+                    a.v_body[k],
+                    "v_body",
+                );
+                close(
+                    (f(v, vb, n + e, mu) - f(v, vb, n - e, mu)) / (2.0 * FD_EPS),
+                    a.n[k],
+                    "n",
+                );
+            }
+            close(
+                (f(v, vb, n, mu + FD_EPS) - f(v, vb, n, mu - FD_EPS)) / (2.0 * FD_EPS),
+                a.mu,
+                "mu",
+            );
+        }
+        assert!(checked > 1000);
+    }
 
     #[test]
     fn modes() {

@@ -38,6 +38,13 @@ pub fn weights_1d_deriv(fx: f64) -> [f64; 3] {
     [fx - 1.5, -2.0 * (fx - 1.0), fx - 0.5]
 }
 
+/// Adjoint of [`weights_1d`]: `∂L/∂w` → `∂L/∂fx`. Exact (the weights are polynomials).
+#[inline(always)]
+pub fn weights_1d_adj(fx: f64, g_w: [f64; 3]) -> f64 {
+    let d = weights_1d_deriv(fx);
+    g_w[0] * d[0] + g_w[1] * d[1] + g_w[2] * d[2]
+}
+
 /// Stencil of a particle at `x` on a grid with node `i` at `origin + i·dx`.
 ///
 /// The caller guarantees that the base lies inside the grid (the advect stage keeps particles in
@@ -87,6 +94,18 @@ mod tests {
             for i in 0..3 {
                 assert!(((p[i] - m[i]) / (2.0 * H) - d[i]).abs() < TOL);
             }
+        }
+    }
+
+    #[test]
+    fn weights_adjoint_matches_central_difference() {
+        const H: f64 = 1e-6;
+        const TOL: f64 = 1e-9;
+        let g = [0.3, -1.2, 0.8];
+        for k in 1..100 {
+            let fx = 0.5 + k as f64 / 100.0;
+            let f = |x: f64| weights_1d(x).iter().zip(g).map(|(w, g)| w * g).sum::<f64>();
+            assert!(((f(fx + H) - f(fx - H)) / (2.0 * H) - weights_1d_adj(fx, g)).abs() < TOL);
         }
     }
 

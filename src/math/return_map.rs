@@ -80,9 +80,264 @@ pub fn dp_project(eps: DVec3, mu: f64, lambda: f64, alpha: f64) -> (DVec3, f64, 
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// Adjoints. Each takes the forward inputs plus the adjoint of the outputs and returns the
+// adjoints of the inputs (the caller accumulates them with `+=`).
+// ---------------------------------------------------------------------------------------------
+
+/// Adjoint of [`lame`]: `(∂L/∂μ, ∂L/∂λ)` → `(∂L/∂E, ∂L/∂ν)`. Exact.
+pub fn lame_adj(youngs: f64, poisson: f64, g_mu: f64, g_lambda: f64) -> (f64, f64) {
+    let (a, b) = (1.0 + poisson, 1.0 - 2.0 * poisson);
+    let g_e = g_mu / (2.0 * a) + g_lambda * poisson / (a * b);
+    let g_nu = -g_mu * youngs / (2.0 * a * a)
+        + g_lambda * youngs * (1.0 + 2.0 * poisson * poisson) / (a * b).powi(2);
+    (g_e, g_nu)
+}
+
+/// Adjoint of [`dp_alpha`]: `∂L/∂α` → `∂L/∂φ` (per degree). Exact.
+pub fn dp_alpha_adj(friction_deg: f64, g_alpha: f64) -> f64 {
+    let phi = friction_deg.to_radians();
+    let s = phi.sin();
+    let c = (2.0f64 / 3.0).sqrt();
+    g_alpha * 6.0 * c / ((3.0 - s) * (3.0 - s)) * phi.cos() * std::f64::consts::PI / 180.0
+}
+
+/// Adjoint of [`hencky`]: `∂L/∂ε` → `∂L/∂σ`. Exact where `σ > SIGMA_MIN`; where the clamp acts
+/// the gradient is the one-sided (constant-branch) zero.
+#[inline(always)]
+pub fn hencky_adj(sigma: DVec3, g_eps: DVec3) -> DVec3 {
+    let g = |s: f64, g: f64| if s > SIGMA_MIN { g / s } else { 0.0 };
+    DVec3::new(
+        g(sigma.x, g_eps.x),
+        g(sigma.y, g_eps.y),
+        g(sigma.z, g_eps.z),
+    )
+}
+
+/// Adjoint of [`kirchhoff_principal`]: `∂L/∂τ_p` → `(∂L/∂ε, ∂L/∂μ, ∂L/∂λ)`. Exact (linear).
+#[inline(always)]
+pub fn kirchhoff_principal_adj(
+    eps: DVec3,
+    mu: f64,
+    lambda: f64,
+    g_tau: DVec3,
+) -> (DVec3, f64, f64) {
+    let sum_g = g_tau.x + g_tau.y + g_tau.z;
+    let tr = eps.x + eps.y + eps.z;
+    (
+        2.0 * mu * g_tau + DVec3::splat(lambda * sum_g),
+        2.0 * eps.dot(g_tau),
+        tr * sum_g,
+    )
+}
+
+/// Adjoint of [`dp_project`]: `(∂L/∂ε′, ∂L/∂δq)` → `(∂L/∂ε, ∂L/∂μ, ∂L/∂λ, ∂L/∂α)`.
+///
+/// Exact inside each of the three cases. The case switches (`tr ε = 0`: tip versus cone;
+/// `δγ = 0`: elastic versus yield) are kinks: there the gradient is that of the case the
+/// forward pass took, i.e. one-sided. On the yield surface, with `n̂ = ε̂/‖ε̂‖` and
+/// `k = (3λ+2μ)/(2μ)`, the projection is `ε′ = (tr ε/3)·1 − k·α·tr ε·n̂`.
+pub fn dp_project_adj(
+    eps: DVec3,
+    mu: f64,
+    lambda: f64,
+    alpha: f64,
+    g_new: DVec3,
+    g_dq: f64,
+) -> (DVec3, f64, f64, f64) {
+    let tr = eps.x + eps.y + eps.z;
+    let (_, _, case) = dp_project(eps, mu, lambda, alpha);
+    match case {
+        DpCase::Tip => {
+            // ε′ = 0, δq = ‖ε‖.
+            let l = eps.length();
+            let g = if l > 0.0 {
+                eps * (g_dq / l)
+            } else {
+                DVec3::ZERO
+            };
+            (g, 0.0, 0.0, 0.0)
+        }
+        DpCase::Elastic => (g_new, 0.0, 0.0, 0.0),
+        DpCase::YieldSurface => {
+            let dev = eps - DVec3::splat(tr / 3.0);
+            let dn2 = dev.length_squared();
+            let dn = dn2.max(DEV_NORM_SQ_MIN).sqrt();
+            let n = dev / dn;
+            let k = (3.0 * lambda + 2.0 * mu) / (2.0 * mu);
+            let ka = k * alpha;
+            // ε′ = (tr/3)·1 − kα·tr·n̂ ;  δq = dn + kα·tr
+            let sum_g = g_new.x + g_new.y + g_new.z;
+            let g_nd = g_new.dot(n);
+            let g_tr = sum_g / 3.0 - ka * g_nd + ka * g_dq;
+            let g_ka = -tr * g_nd + tr * g_dq;
+            let g_n = g_new * (-ka * tr);
+            // n̂ = dev/dn and dn = ‖dev‖ (both constant in dev below the clamp: one-sided zero).
+            let g_dev = if dn2 > DEV_NORM_SQ_MIN {
+                (g_n - n * n.dot(g_n)) / dn + n * g_dq
+            } else {
+                DVec3::ZERO
+            };
+            let sum_dev = g_dev.x + g_dev.y + g_dev.z;
+            let g_eps = g_dev - DVec3::splat(sum_dev / 3.0) + DVec3::splat(g_tr);
+            let g_k = g_ka * alpha;
+            let g_alpha = g_ka * k;
+            let g_lambda = g_k * 3.0 / (2.0 * mu);
+            let g_mu = -g_k * 3.0 * lambda / (2.0 * mu * mu);
+            (g_eps, g_mu, g_lambda, g_alpha)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Central-difference step and the required agreement, f64, away from kinks.
+    const FD_EPS: f64 = 1e-6;
+    const ADJ_REL_TOL: f64 = 1e-6;
+
+    fn close(fd: f64, ad: f64, what: &str) {
+        let scale = fd.abs().max(ad.abs()).max(1e-6);
+        assert!(
+            (fd - ad).abs() <= ADJ_REL_TOL * scale,
+            "{what}: fd {fd} ad {ad}"
+        );
+    }
+
+    fn lcg(seed: &mut u64) -> f64 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((*seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+    }
+
+    #[test]
+    fn lame_and_alpha_adjoints() {
+        let (e, nu) = (3.5e5, 0.3);
+        let (gm, gl) = (0.7, -1.3);
+        let f = |e: f64, nu: f64| {
+            let (m, l) = lame(e, nu);
+            gm * m + gl * l
+        };
+        let (ge, gn) = lame_adj(e, nu, gm, gl);
+        close(
+            (f(e * (1.0 + FD_EPS), nu) - f(e * (1.0 - FD_EPS), nu)) / (2.0 * e * FD_EPS),
+            ge,
+            "dE",
+        );
+        close(
+            (f(e, nu + FD_EPS) - f(e, nu - FD_EPS)) / (2.0 * FD_EPS),
+            gn,
+            "dnu",
+        );
+        for phi in [5.0, 30.0, 60.0] {
+            let fd = (dp_alpha(phi + FD_EPS) - dp_alpha(phi - FD_EPS)) / (2.0 * FD_EPS);
+            close(fd, dp_alpha_adj(phi, 1.0), "dalpha/dphi");
+        }
+    }
+
+    #[test]
+    fn hencky_and_kirchhoff_adjoints() {
+        let mut seed = 4;
+        for _ in 0..100 {
+            let s = DVec3::new(
+                1.0 + 0.3 * lcg(&mut seed),
+                1.0 + 0.3 * lcg(&mut seed),
+                1.0 + 0.3 * lcg(&mut seed),
+            );
+            let w = DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed));
+            let (mu, lambda) = (1e5 * (1.5 + lcg(&mut seed)), 1e5 * (1.5 + lcg(&mut seed)));
+            let g_s = hencky_adj(s, kirchhoff_principal_adj(hencky(s), mu, lambda, w).0);
+            let f =
+                |s: DVec3, mu: f64, lambda: f64| kirchhoff_principal(hencky(s), mu, lambda).dot(w);
+            for a in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[a] = FD_EPS;
+                close(
+                    (f(s + e, mu, lambda) - f(s - e, mu, lambda)) / (2.0 * FD_EPS),
+                    g_s[a],
+                    "dsigma",
+                );
+            }
+            let (_, gm, gl) = kirchhoff_principal_adj(hencky(s), mu, lambda, w);
+            let h = FD_EPS * mu;
+            close(
+                (f(s, mu + h, lambda) - f(s, mu - h, lambda)) / (2.0 * h),
+                gm,
+                "dmu",
+            );
+            close(
+                (f(s, mu, lambda + h) - f(s, mu, lambda - h)) / (2.0 * h),
+                gl,
+                "dlambda",
+            );
+        }
+    }
+
+    #[test]
+    fn dp_projection_adjoint_in_every_case() {
+        let mut seed = 8;
+        let mut seen = [0usize; 3];
+        for _ in 0..3000 {
+            let eps = 0.05 * DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed));
+            let (mu, lambda) = lame(1e5, 0.3);
+            let alpha = dp_alpha(20.0 + 20.0 * lcg(&mut seed).abs());
+            let (w, wq) = (
+                DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed)),
+                lcg(&mut seed),
+            );
+            let f = |eps: DVec3, mu: f64, lambda: f64, alpha: f64| {
+                let (e, dq, _) = dp_project(eps, mu, lambda, alpha);
+                e.dot(w) + wq * dq
+            };
+            // Away from the kinks: the case must not change within 100 FD steps.
+            let (_, _, case) = dp_project(eps, mu, lambda, alpha);
+            let robust = (0..3).all(|a| {
+                let mut e = DVec3::ZERO;
+                e[a] = 100.0 * FD_EPS;
+                dp_project(eps + e, mu, lambda, alpha).2 == case
+                    && dp_project(eps - e, mu, lambda, alpha).2 == case
+            }) && dp_project(eps, mu, lambda, alpha * 1.001).2 == case
+                && dp_project(eps, mu, lambda, alpha * 0.999).2 == case;
+            if !robust {
+                continue;
+            }
+            seen[case as usize] += 1;
+            let (ge, gm, gl, ga) = dp_project_adj(eps, mu, lambda, alpha, w, wq);
+            for a in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[a] = FD_EPS;
+                close(
+                    (f(eps + e, mu, lambda, alpha) - f(eps - e, mu, lambda, alpha))
+                        / (2.0 * FD_EPS),
+                    ge[a],
+                    "deps",
+                );
+            }
+            let h = FD_EPS * mu;
+            close(
+                (f(eps, mu + h, lambda, alpha) - f(eps, mu - h, lambda, alpha)) / (2.0 * h),
+                gm,
+                "dmu",
+            );
+            close(
+                (f(eps, mu, lambda + h, alpha) - f(eps, mu, lambda - h, alpha)) / (2.0 * h),
+                gl,
+                "dlambda",
+            );
+            close(
+                (f(eps, mu, lambda, alpha + FD_EPS) - f(eps, mu, lambda, alpha - FD_EPS))
+                    / (2.0 * FD_EPS),
+                ga,
+                "dalpha",
+            );
+        }
+        assert!(
+            seen.iter().all(|&n| n > 50),
+            "every case exercised: {seen:?}"
+        );
+    }
 
     #[test]
     fn klar_parameters() {
