@@ -81,3 +81,22 @@ pub enum SimError {
     #[error("{0}")]
     Other(String),
 }
+
+/// Failures of the backward pass. A gradient is never returned zeroed or clipped silently.
+#[derive(Debug, Error)]
+pub enum AdjointError {
+    #[error("the scene cannot be differentiated yet: {0}")]
+    NotDifferentiable(String),
+    #[error("non-finite adjoint at step {step}, substep {substep}, after stage '{stage}': field '{field}' of {owner} index {index} is {value}")]
+    NonFinite {
+        step: usize,
+        substep: usize,
+        stage: &'static str,
+        field: &'static str,
+        owner: String,
+        index: usize,
+        value: String,
+    },
+    #[error(transparent)]
+    Sim(#[from] SimError),
+}

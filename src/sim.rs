@@ -439,6 +439,11 @@ impl Simulation {
             .unwrap_or_default()
     }
 
+    /// The worker pool the systems run in.
+    pub fn pool(&self) -> &rayon::ThreadPool {
+        &self.pool
+    }
+
     /// Worker threads in use.
     pub fn threads(&self) -> usize {
         self.pool.current_num_threads()

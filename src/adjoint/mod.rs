@@ -1,7 +1,107 @@
 //! Adjoint systems: one file per forward stage, mirroring `src/systems` name for name
-//! (`systems/p2g.rs::p2g` ↔ `adjoint/p2g.rs::p2g_adjoint`), run in a `SubstepAdjoint` schedule
-//! whose sets are chained in exactly the reverse order.
+//! (`systems/p2g.rs::p2g` ↔ `adjoint/p2g.rs::p2g_adjoint`). They run in the `SubstepAdjoint`
+//! schedule, whose sets are the forward [`Stage`] sets chained in exactly the reverse order.
 //!
-//! Not implemented yet: the forward simulator is the foundation they build on, and the
-//! adjoint work is tracked as its own issue. Until then no forward schedule allocates tape or
-//! adjoint buffers, and no command claims to compute a gradient.
+//! The adjoint of a gather is a scatter-add and the adjoint of a scatter is a gather: G2P's
+//! adjoint scatters into the grid with the same race-free slab colouring as P2G, and P2G's
+//! adjoint gathers per particle, so gradients are bitwise identical for any thread count.
+//!
+//! Every adjoint system reads the forward values of its substep: the backward driver
+//! (`tape.rs`) restores the substep's start state, re-runs the forward stages up to G2P (which
+//! refills the scratch: SVD factors, affine term, grid) and keeps the start state in
+//! [`SubstepStart`](crate::components::SubstepStart) for the stages whose inputs were
+//! overwritten in place.
+//!
+//! Not yet differentiated, and refused loudly by the backward driver: SDF colliders (tool
+//! move, collider contact, particle collision) and Klár hardening.
+
+pub mod advect;
+pub mod constitutive;
+pub mod deformation_update;
+pub mod g2p;
+pub mod gravity;
+pub mod grid_collision;
+pub mod grid_reset;
+pub mod p2g;
+pub mod svd;
+pub mod tape;
+
+use crate::systems::{new_schedule, Stage, SubstepPlan};
+use bevy_ecs::prelude::*;
+use bevy_ecs::schedule::ScheduleLabel;
+
+/// The adjoint substep schedule.
+#[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct SubstepAdjoint;
+
+/// Adds the adjoint systems of one stage. Returns whether any was added.
+pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> bool {
+    match stage {
+        Stage::GridReset => {
+            schedule.add_systems(grid_reset::grid_reset_adjoint.in_set(stage));
+        }
+        Stage::DeformationUpdate => {
+            schedule.add_systems(deformation_update::deformation_update_adjoint.in_set(stage));
+        }
+        Stage::Svd => {
+            schedule.add_systems(svd::svd_adjoint.in_set(stage));
+        }
+        Stage::Constitutive => {
+            for (i, m) in plan.materials.iter().enumerate() {
+                schedule.add_systems(
+                    m.constitutive_adjoint_system()
+                        .in_set(stage)
+                        .in_set(crate::systems::MaterialSlot(i)),
+                );
+                if i > 0 {
+                    // Reverse order of the forward material systems.
+                    schedule.configure_sets(
+                        crate::systems::MaterialSlot(i).before(crate::systems::MaterialSlot(i - 1)),
+                    );
+                }
+            }
+        }
+        Stage::P2g => {
+            schedule.add_systems(p2g::p2g_adjoint.in_set(stage));
+        }
+        Stage::Gravity => {
+            schedule.add_systems(gravity::gravity_adjoint.in_set(stage));
+        }
+        Stage::GridCollision => {
+            schedule.add_systems(grid_collision::domain_walls_adjoint.in_set(stage));
+        }
+        Stage::G2p => {
+            schedule.add_systems(g2p::g2p_adjoint.in_set(stage));
+        }
+        Stage::Advect => {
+            schedule.add_systems(advect::advect_adjoint.in_set(stage));
+        }
+        Stage::ToolMove | Stage::ParticleCollision => return false,
+    }
+    true
+}
+
+/// The adjoint substep: the forward stage sets chained in reverse.
+pub fn build_substep_adjoint_schedule(plan: &SubstepPlan) -> Schedule {
+    let mut s = new_schedule();
+    s.configure_sets(
+        (
+            Stage::Advect,
+            Stage::ParticleCollision,
+            Stage::G2p,
+            Stage::GridCollision,
+            Stage::Gravity,
+            Stage::ToolMove,
+            Stage::P2g,
+            Stage::Constitutive,
+            Stage::Svd,
+            Stage::DeformationUpdate,
+            Stage::GridReset,
+        )
+            .chain(),
+    );
+    for stage in Stage::ALL.iter().rev() {
+        add_adjoint_stage(&mut s, *stage, plan);
+    }
+    s
+}

@@ -5,11 +5,13 @@
 //! simulation (positions, velocities, C, F, hardening) is kept apart from per-substep scratch
 //! (trial F, SVD factors, P2G affine term, scatter order): only the former would be checkpointed.
 
+pub mod adjoint;
 pub mod collider;
 pub mod grid;
 pub mod particles;
 pub mod sim;
 
+pub use adjoint::*;
 pub use collider::*;
 pub use grid::*;
 pub use particles::*;

@@ -2,9 +2,11 @@
 //! optional hardening. The maths is in `crate::math::return_map`.
 
 use super::{check_range, Material};
+use crate::components::MaterialAdj;
 use crate::error::FieldError;
 use crate::math::return_map::{
-    dp_alpha, dp_project, hardened_friction_deg, hencky, kirchhoff_principal, lame,
+    dp_alpha, dp_alpha_adj, dp_project, dp_project_adj, hardened_friction_deg, hencky, hencky_adj,
+    kirchhoff_principal, kirchhoff_principal_adj, lame, lame_adj,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -142,5 +144,102 @@ impl Material for DruckerPrager {
         *q += dq;
         let s_new = DVec3::new(eps_new.x.exp(), eps_new.y.exp(), eps_new.z.exp());
         (Some(s_new), kirchhoff_principal(eps_new, c.mu, c.lambda))
+    }
+
+    /// Exact within each return-mapping case; one-sided at the case switches (see
+    /// `dp_project_adj`). With hardening the friction angle's dependence on `q` is not
+    /// differentiated (the backward pass refuses such scenes).
+    fn update_adj(
+        &self,
+        sigma: DVec3,
+        _q: f64,
+        g_sigma_new: DVec3,
+        g_tau: DVec3,
+    ) -> (DVec3, MaterialAdj) {
+        let c = self.cache.as_ref().expect("prepared");
+        let eps = hencky(sigma);
+        let (eps_new, _, _) = dp_project(eps, c.mu, c.lambda, c.alpha);
+        let s_new = DVec3::new(eps_new.x.exp(), eps_new.y.exp(), eps_new.z.exp());
+        let (g_eps_k, mut g_mu, mut g_lambda) =
+            kirchhoff_principal_adj(eps_new, c.mu, c.lambda, g_tau);
+        let g_eps_new = g_sigma_new * s_new + g_eps_k;
+        let (g_eps, gm, gl, g_alpha) = dp_project_adj(eps, c.mu, c.lambda, c.alpha, g_eps_new, 0.0);
+        g_mu += gm;
+        g_lambda += gl;
+        let (g_e, g_nu) = lame_adj(self.youngs_modulus, self.poisson_ratio, g_mu, g_lambda);
+        (
+            hencky_adj(sigma, g_eps),
+            MaterialAdj {
+                youngs_modulus: g_e,
+                poisson_ratio: g_nu,
+                friction_deg: dp_alpha_adj(self.friction_deg, g_alpha),
+            },
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// f64 central differences away from the return-mapping kinks.
+    const FD_EPS: f64 = 1e-7;
+    const ADJ_REL_TOL: f64 = 1e-6;
+
+    #[test]
+    fn update_adjoint_matches_central_differences() {
+        let w_s = DVec3::new(0.3, -0.8, 0.5);
+        let w_t = DVec3::new(1e-5, 2e-5, -1.5e-5);
+        let loss = |m: &DruckerPrager, s: DVec3| {
+            let m = m.clone().prepared();
+            let (sn, t) = m.update(s, &mut 0.0);
+            sn.unwrap().dot(w_s) + t.dot(w_t)
+        };
+        for sigma in [
+            DVec3::new(1.02, 0.97, 0.99),
+            DVec3::new(0.95, 0.99, 0.93),
+            DVec3::new(0.99, 0.99, 0.985),
+        ] {
+            let m = DruckerPrager::new(1e5, 0.3, 30.0).prepared();
+            let (g_s, g_m) = m.update_adj(sigma, 0.0, w_s, w_t);
+            let close = |fd: f64, ad: f64, what: &str| {
+                assert!(
+                    (fd - ad).abs() <= ADJ_REL_TOL * fd.abs().max(ad.abs()).max(1e-9),
+                    "σ {sigma:?} {what}: fd {fd} ad {ad}"
+                );
+            };
+            for a in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[a] = FD_EPS;
+                close(
+                    (loss(&m, sigma + e) - loss(&m, sigma - e)) / (2.0 * FD_EPS),
+                    g_s[a],
+                    "σ",
+                );
+            }
+            let with = |f: &dyn Fn(&mut DruckerPrager)| {
+                let mut x = m.clone();
+                f(&mut x);
+                loss(&x, sigma)
+            };
+            let h = 1e-3;
+            close(
+                (with(&|x| x.youngs_modulus += h) - with(&|x| x.youngs_modulus -= h)) / (2.0 * h),
+                g_m.youngs_modulus,
+                "E",
+            );
+            close(
+                (with(&|x| x.poisson_ratio += FD_EPS) - with(&|x| x.poisson_ratio -= FD_EPS))
+                    / (2.0 * FD_EPS),
+                g_m.poisson_ratio,
+                "ν",
+            );
+            close(
+                (with(&|x| x.friction_deg += FD_EPS) - with(&|x| x.friction_deg -= FD_EPS))
+                    / (2.0 * FD_EPS),
+                g_m.friction_deg,
+                "φ",
+            );
+        }
     }
 }

@@ -1,8 +1,11 @@
 //! Elastic solid: StVK in Hencky strain, no plasticity (no return mapping runs).
 
 use super::{check_range, Material};
+use crate::components::MaterialAdj;
 use crate::error::FieldError;
-use crate::math::return_map::{hencky, kirchhoff_principal, lame};
+use crate::math::return_map::{
+    hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj, lame, lame_adj,
+};
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -56,5 +59,26 @@ impl Material for Elastic {
     fn update(&self, sigma: DVec3, _q: &mut f64) -> (Option<DVec3>, DVec3) {
         let (mu, lambda) = self.lame();
         (None, kirchhoff_principal(hencky(sigma), mu, lambda))
+    }
+
+    /// Exact (away from the `SIGMA_MIN` clamp of the Hencky strain).
+    fn update_adj(
+        &self,
+        sigma: DVec3,
+        _q: f64,
+        _g_sigma_new: DVec3,
+        g_tau: DVec3,
+    ) -> (DVec3, MaterialAdj) {
+        let (mu, lambda) = self.lame();
+        let (g_eps, g_mu, g_lambda) = kirchhoff_principal_adj(hencky(sigma), mu, lambda, g_tau);
+        let (g_e, g_nu) = lame_adj(self.youngs_modulus, self.poisson_ratio, g_mu, g_lambda);
+        (
+            hencky_adj(sigma, g_eps),
+            MaterialAdj {
+                youngs_modulus: g_e,
+                poisson_ratio: g_nu,
+                friction_deg: 0.0,
+            },
+        )
     }
 }

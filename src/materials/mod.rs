@@ -36,6 +36,16 @@ pub trait Material: Component + Clone + Send + Sync + 'static {
     /// Returns the projected singular values (`None` when `F` stays the trial `F`, i.e. no
     /// plasticity) and the principal Kirchhoff stresses. `q` is the hardening variable.
     fn update(&self, sigma: DVec3, q: &mut f64) -> (Option<DVec3>, DVec3);
+    /// Adjoint of [`Material::update`] at `σ` (hardening not differentiated): given `∂L/∂σ′`
+    /// (ignored when the update returns `None`) and `∂L/∂τ_p`, returns `∂L/∂σ` and the
+    /// material-parameter gradient.
+    fn update_adj(
+        &self,
+        sigma: DVec3,
+        q: f64,
+        g_sigma_new: DVec3,
+        g_tau: DVec3,
+    ) -> (DVec3, crate::components::MaterialAdj);
 }
 
 macro_rules! register_materials {
@@ -71,6 +81,14 @@ macro_rules! register_materials {
                 match self {
                     $(Self::$variant(_) => {
                         crate::systems::constitutive::constitutive_model::<$ty>.into_configs()
+                    })*
+                }
+            }
+            /// The adjoint of the constitutive system for this material.
+            pub fn constitutive_adjoint_system(&self) -> ScheduleConfigs<ScheduleSystem> {
+                match self {
+                    $(Self::$variant(_) => {
+                        crate::adjoint::constitutive::constitutive_model_adjoint::<$ty>.into_configs()
                     })*
                 }
             }

@@ -1,0 +1,104 @@
+//! Adjoint of stage 4, the constitutive model. With `A = m·C + k·τ`, `k = −Δt·V_p·4/dx²`,
+//! `τ = U·D·Uᵀ` (`D = diag(τ_p)`) and `F′ = U·diag(σ′)·Vᵀ` (or `F′ = F_tmp` without plasticity):
+//!
+//! ```text
+//! C̄ += m·Ā;   τ̄ = k·Ā;   Ū += (τ̄ + τ̄ᵀ)·U·D;   D̄_a = (Uᵀ·τ̄·U)_aa
+//! Ū += F̄′·V·diag(σ′);   V̄ += F̄′ᵀ·U·diag(σ′);   σ̄′_a = (Uᵀ·F̄′·V)_aa
+//! ```
+//!
+//! then the material's `update_adj` maps `(σ̄′, D̄)` to `σ̄` and the parameter gradient
+//! (exact within a return-mapping case, one-sided at the case switches). Consumes `Ā` and
+//! `F̄′`; accumulates `Ū, σ̄, V̄`, `F̄_tmp`, `C̄` and [`MaterialAdj`].
+
+use crate::components::*;
+use crate::materials::Material;
+use crate::systems::constitutive::compose;
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// Particles per chunk of the material-gradient reduction; fixed so the sum order does not
+/// depend on the thread count.
+const REDUCE_CHUNK: usize = 1024;
+
+#[inline(always)]
+fn diag_of(m: DMat3) -> DVec3 {
+    DVec3::new(m.x_axis.x, m.y_axis.y, m.z_axis.z)
+}
+
+#[allow(clippy::type_complexity)]
+pub fn constitutive_model_adjoint<M: Material>(
+    params: Res<SimParams>,
+    grid: Res<Grid>,
+    mut bodies: Query<(
+        &M,
+        &Body,
+        &SvdFactors,
+        &mut SvdFactorsAdj,
+        &mut P2gAffineAdj,
+        &mut DeformationGradientAdj,
+        &mut TrialDeformationAdj,
+        &mut AffineVelocityAdj,
+        &mut MaterialAdj,
+    )>,
+) {
+    let coef_dt = -params.dt_sub * 4.0 / (grid.dx * grid.dx);
+    for (mat, body, svd, mut g_svd, mut g_a, mut g_f, mut g_ft, mut g_c, mut g_mat) in &mut bodies {
+        let k = coef_dt * body.particle_volume;
+        let m = body.particle_mass;
+        let n = svd.u.len();
+        let g_svd = &mut *g_svd;
+        let mut per_particle = vec![MaterialAdj::default(); n];
+        per_particle
+            .par_iter_mut()
+            .zip(
+                g_svd
+                    .u
+                    .par_iter_mut()
+                    .zip(g_svd.s.par_iter_mut().zip(g_svd.v.par_iter_mut())),
+            )
+            .zip(g_a.0.par_iter_mut().zip(g_f.0.par_iter_mut()))
+            .zip(g_ft.0.par_iter_mut().zip(g_c.0.par_iter_mut()))
+            .enumerate()
+            .for_each(|(i, (((pm, (gu, (gs, gv))), (ga, gf)), (gft, gc)))| {
+                let (u, s, v) = (svd.u[i], svd.s[i], svd.v[i]);
+                let (s_new, tau_p) = mat.update(s, &mut 0.0);
+                // A = m C + k U D Uᵀ
+                *gc += *ga * m;
+                let g_tau = *ga * k;
+                let sym = g_tau + g_tau.transpose();
+                *gu += sym * compose(u, tau_p, DMat3::IDENTITY);
+                let g_d = diag_of(u.transpose() * g_tau * u);
+                // F' = U diag(σ') Vᵀ, or F' = F_tmp.
+                let g_s_new = match s_new {
+                    Some(sn) => {
+                        *gu += *gf * compose(v, sn, DMat3::IDENTITY);
+                        *gv += gf.transpose() * compose(u, sn, DMat3::IDENTITY);
+                        diag_of(u.transpose() * *gf * v)
+                    }
+                    None => {
+                        *gft += *gf;
+                        DVec3::ZERO
+                    }
+                };
+                let (g_sigma, g_m) = mat.update_adj(s, 0.0, g_s_new, g_d);
+                *gs += g_sigma;
+                *pm = g_m;
+                *ga = DMat3::ZERO;
+                *gf = DMat3::ZERO;
+            });
+        let partial: Vec<MaterialAdj> = per_particle
+            .par_chunks(REDUCE_CHUNK)
+            .map(|c| c.iter().fold(MaterialAdj::default(), add_material))
+            .collect();
+        *g_mat = partial.iter().fold(*g_mat, add_material);
+    }
+}
+
+fn add_material(a: MaterialAdj, b: &MaterialAdj) -> MaterialAdj {
+    MaterialAdj {
+        youngs_modulus: a.youngs_modulus + b.youngs_modulus,
+        poisson_ratio: a.poisson_ratio + b.poisson_ratio,
+        friction_deg: a.friction_deg + b.friction_deg,
+    }
+}

@@ -1,0 +1,99 @@
+//! Adjoint of stage 5, P2G. Forward: `m_i = Σ_p w_ip·m`, `p_i = Σ_p w_ip·(m·v_p + A_p·d_ip)`
+//! with `d_ip = x_i − x_p`, and `v_i = p_i/m_i` on non-empty nodes. Adjoint (a gather, one
+//! particle at a time, so deterministic for any thread count):
+//!
+//! ```text
+//! p̄_i = v̄_i/m_i,   m̄_i = −v̄_i·p_i/m_i²                      (non-empty nodes; 0 otherwise)
+//! v̄_p += Σ_i w_ip·m·p̄_i
+//! Ā_p += Σ_i w_ip·p̄_i·d_ipᵀ
+//! x̄_p += Σ_i ∇w_ip·[(m·v_p + A_p·d_ip)·p̄_i + m·m̄_i] − w_ip·A_pᵀ·p̄_i
+//! ```
+//!
+//! Exact except at the empty-node threshold `m_i = m_min` (a kink: one-sided). Reads the
+//! substep-start `x`, `v`; accumulates `v̄`, `Ā`, `x̄`.
+
+use crate::components::*;
+use crate::math::kernel::{stencil, weights_1d_deriv};
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+pub fn p2g_adjoint(
+    params: Res<SimParams>,
+    grid: Res<Grid>,
+    adj: Res<GridAdj>,
+    mut bodies: Query<(
+        &Body,
+        &SubstepStart,
+        &P2gAffine,
+        &mut PositionAdj,
+        &mut VelocityAdj,
+        &mut P2gAffineAdj,
+    )>,
+) {
+    let m_min = params.empty_node_mass;
+    let dx = grid.dx;
+    let inv_dx = 1.0 / dx;
+    // Node adjoints of momentum and mass from v = p/m.
+    let (g_p, g_m): (Vec<DVec3>, Vec<f64>) = adj
+        .velocity
+        .par_iter()
+        .zip(grid.mass.par_iter().zip(grid.momentum.par_iter()))
+        .map(|(gv, (&m, &p))| {
+            if m > m_min {
+                (*gv / m, -gv.dot(p) / (m * m))
+            } else {
+                (DVec3::ZERO, 0.0)
+            }
+        })
+        .unzip();
+    for (body, start, aff, mut gx, mut gv, mut ga) in &mut bodies {
+        let m = body.particle_mass;
+        gx.0.par_iter_mut()
+            .zip(gv.0.par_iter_mut().zip(ga.0.par_iter_mut()))
+            .enumerate()
+            .for_each(|(i, (gx, (gv, ga)))| {
+                let xp = start.x[i];
+                let mv = start.v[i] * m;
+                let a = aff.0[i];
+                let st = stencil((xp - grid.origin) * inv_dx);
+                let dw = [
+                    weights_1d_deriv(st.fx.x),
+                    weights_1d_deriv(st.fx.y),
+                    weights_1d_deriv(st.fx.z),
+                ];
+                let [bi, bj, bk] = st.base;
+                let (mut sv, mut sa, mut sx) = (DVec3::ZERO, DMat3::ZERO, DVec3::ZERO);
+                for ia in 0..3 {
+                    for ib in 0..3 {
+                        let row = grid.index(bi + ia, bj + ib, bk);
+                        for ic in 0..3 {
+                            let node = row + ic;
+                            let gp = g_p[node];
+                            let gm = g_m[node];
+                            if gp == DVec3::ZERO && gm == 0.0 {
+                                continue;
+                            }
+                            let w = st.w[0][ia] * st.w[1][ib] * st.w[2][ic];
+                            let grad_w = DVec3::new(
+                                dw[0][ia] * st.w[1][ib] * st.w[2][ic],
+                                st.w[0][ia] * dw[1][ib] * st.w[2][ic],
+                                st.w[0][ia] * st.w[1][ib] * dw[2][ic],
+                            ) * inv_dx;
+                            let d = DVec3::new(
+                                ia as f64 - st.fx.x,
+                                ib as f64 - st.fx.y,
+                                ic as f64 - st.fx.z,
+                            ) * dx;
+                            sv += gp * (w * m);
+                            sa += DMat3::from_cols(gp * (w * d.x), gp * (w * d.y), gp * (w * d.z));
+                            sx += grad_w * ((mv + a * d).dot(gp) + m * gm) - a.transpose() * gp * w;
+                        }
+                    }
+                }
+                *gv += sv;
+                *ga += sa;
+                *gx += sx;
+            });
+    }
+}
