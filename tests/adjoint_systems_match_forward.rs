@@ -1,0 +1,361 @@
+//! Every adjoint system, run alone on a small random state, agrees with central differences of
+//! its forward system: for a random output weighting `W` and a random input direction `δ`,
+//! `Σ ∂L/∂input·δ` from the adjoint equals `(L(in + εδ) − L(in − εδ))/2ε`, `L = W·output`.
+
+use bevy_ecs::prelude::*;
+use bevy_ecs::system::RunSystemOnce;
+use glam::{DMat3, DVec3};
+use powderlab::adjoint;
+use powderlab::adjoint::gravity::GravityAdj;
+use powderlab::adjoint::grid_collision::WallInputVelocity;
+use powderlab::components::*;
+use powderlab::materials::drucker_prager::DruckerPrager;
+use powderlab::systems;
+
+/// f64 central differences with ε = 1e-6 resolve these smooth maps to ~1e-9; the adjoint must
+/// agree to 1e-6 relative.
+const FD_EPS: f64 = 1e-6;
+const REL_TOL: f64 = 1e-6;
+const N: usize = 40;
+const NG: usize = 12;
+
+struct Rng(u64);
+impl Rng {
+    fn f(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+    }
+    fn v(&mut self) -> DVec3 {
+        DVec3::new(self.f(), self.f(), self.f())
+    }
+    fn m(&mut self) -> DMat3 {
+        DMat3::from_cols(self.v(), self.v(), self.v())
+    }
+    fn vs(&mut self, n: usize) -> Vec<DVec3> {
+        (0..n).map(|_| self.v()).collect()
+    }
+    fn ms(&mut self, n: usize) -> Vec<DMat3> {
+        (0..n).map(|_| self.m()).collect()
+    }
+}
+
+fn dotv(a: &[DVec3], b: &[DVec3]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x.dot(*y)).sum()
+}
+fn dotm(a: &[DMat3], b: &[DMat3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| {
+            x.to_cols_array()
+                .iter()
+                .zip(y.to_cols_array())
+                .map(|(p, q)| p * q)
+                .sum::<f64>()
+        })
+        .sum()
+}
+fn axpy_v(a: &[DVec3], s: f64, d: &[DVec3]) -> Vec<DVec3> {
+    a.iter().zip(d).map(|(x, y)| *x + *y * s).collect()
+}
+fn axpy_m(a: &[DMat3], s: f64, d: &[DMat3]) -> Vec<DMat3> {
+    a.iter().zip(d).map(|(x, y)| *x + *y * s).collect()
+}
+
+fn check(what: &str, fd: f64, ad: f64) {
+    let rel = (fd - ad).abs() / fd.abs().max(ad.abs()).max(1e-12);
+    println!("{what}: adjoint {ad:.10e} fd {fd:.10e} rel {rel:.1e}");
+    assert!(rel <= REL_TOL, "{what}: adjoint {ad} vs fd {fd} ({rel})");
+}
+
+/// A world with one body of `N` random particles inside a 12³ grid and zeroed adjoints.
+fn world(rng: &mut Rng) -> (World, Entity) {
+    let mut w = World::new();
+    let dx = 0.01;
+    w.insert_resource(Grid::new(DVec3::ZERO, dx, [NG, NG, NG]));
+    w.insert_resource(SimParams {
+        dt: 0.01,
+        substeps: 10,
+        dt_sub: 1e-3,
+        gravity: DVec3::new(0.0, -9.81, 0.0),
+        empty_node_mass: 0.0,
+    });
+    w.insert_resource(Health::default());
+    w.insert_resource(Clock::default());
+    w.insert_resource(GridAdj::new(NG * NG * NG));
+    w.insert_resource(GravityAdj::default());
+    w.insert_resource(DomainWalls {
+        cells: 3,
+        mode: ContactMode::Separate,
+        friction: 0.3,
+    });
+    w.insert_resource(WallInputVelocity(vec![DVec3::ZERO; NG * NG * NG]));
+    let x: Vec<DVec3> = (0..N)
+        .map(|_| DVec3::splat(0.06) + rng.v() * 0.03)
+        .collect();
+    let f: Vec<DMat3> = (0..N).map(|_| DMat3::IDENTITY + rng.m() * 0.05).collect();
+    let e = w
+        .spawn((
+            Body {
+                name: "b".into(),
+                index: 0,
+                particle_mass: 1.5e-3,
+                particle_volume: 1e-6,
+            },
+            Position(x.clone()),
+            Velocity(rng.vs(N)),
+            AffineVelocity(rng.ms(N)),
+            DeformationGradient(f.clone()),
+            TrialDeformation(f),
+            SvdFactors {
+                u: vec![DMat3::IDENTITY; N],
+                s: vec![DVec3::ONE; N],
+                v: vec![DMat3::IDENTITY; N],
+            },
+            P2gAffine(rng.ms(N)),
+            ScatterOrder::default(),
+            DruckerPrager::new(1e5, 0.3, 30.0).prepared(),
+        ))
+        .id();
+    w.entity_mut(e).insert((
+        PositionAdj(vec![DVec3::ZERO; N]),
+        VelocityAdj(vec![DVec3::ZERO; N]),
+        AffineVelocityAdj(vec![DMat3::ZERO; N]),
+        DeformationGradientAdj(vec![DMat3::ZERO; N]),
+        TrialDeformationAdj(vec![DMat3::ZERO; N]),
+        SvdFactorsAdj {
+            u: vec![DMat3::ZERO; N],
+            s: vec![DVec3::ZERO; N],
+            v: vec![DMat3::ZERO; N],
+        },
+        P2gAffineAdj(vec![DMat3::ZERO; N]),
+        SubstepStart::default(),
+        MaterialAdj::default(),
+    ));
+    (w, e)
+}
+
+#[test]
+fn deformation_update() {
+    let mut rng = Rng(1);
+    let (mut w, e) = world(&mut rng);
+    let (c0, f0) = (
+        w.get::<AffineVelocity>(e).unwrap().0.clone(),
+        w.get::<DeformationGradient>(e).unwrap().0.clone(),
+    );
+    let (wt, dc, df) = (rng.ms(N), rng.ms(N), rng.ms(N));
+    let loss = |w: &mut World, c: &[DMat3], f: &[DMat3]| {
+        w.get_mut::<AffineVelocity>(e).unwrap().0 = c.to_vec();
+        w.get_mut::<DeformationGradient>(e).unwrap().0 = f.to_vec();
+        w.run_system_once(systems::deformation_update::deformation_update)
+            .unwrap();
+        dotm(&w.get::<TrialDeformation>(e).unwrap().0, &wt)
+    };
+    let fd = (loss(&mut w, &axpy_m(&c0, FD_EPS, &dc), &axpy_m(&f0, FD_EPS, &df))
+        - loss(
+            &mut w,
+            &axpy_m(&c0, -FD_EPS, &dc),
+            &axpy_m(&f0, -FD_EPS, &df),
+        ))
+        / (2.0 * FD_EPS);
+    w.get_mut::<SubstepStart>(e).unwrap().c = c0;
+    w.get_mut::<SubstepStart>(e).unwrap().f = f0;
+    w.get_mut::<TrialDeformationAdj>(e).unwrap().0 = wt;
+    w.run_system_once(adjoint::deformation_update::deformation_update_adjoint)
+        .unwrap();
+    let ad = dotm(&w.get::<AffineVelocityAdj>(e).unwrap().0, &dc)
+        + dotm(&w.get::<DeformationGradientAdj>(e).unwrap().0, &df);
+    check("deformation_update", fd, ad);
+}
+
+#[test]
+fn svd() {
+    let mut rng = Rng(2);
+    let (mut w, e) = world(&mut rng);
+    let ft0 = w.get::<TrialDeformation>(e).unwrap().0.clone();
+    let (wu, ws, wv, d) = (rng.ms(N), rng.vs(N), rng.ms(N), rng.ms(N));
+    let loss = |w: &mut World, ft: &[DMat3]| {
+        w.get_mut::<TrialDeformation>(e).unwrap().0 = ft.to_vec();
+        // Cold start each time: the decomposition must not depend on the warm start.
+        let mut s = w.get_mut::<SvdFactors>(e).unwrap();
+        s.v = vec![DMat3::IDENTITY; N];
+        w.run_system_once(systems::svd::svd).unwrap();
+        let s = w.get::<SvdFactors>(e).unwrap();
+        dotm(&s.u, &wu) + dotv(&s.s, &ws) + dotm(&s.v, &wv)
+    };
+    let fd = (loss(&mut w, &axpy_m(&ft0, FD_EPS, &d)) - loss(&mut w, &axpy_m(&ft0, -FD_EPS, &d)))
+        / (2.0 * FD_EPS);
+    loss(&mut w, &ft0);
+    let mut g = w.get_mut::<SvdFactorsAdj>(e).unwrap();
+    (g.u, g.s, g.v) = (wu, ws, wv);
+    w.run_system_once(adjoint::svd::svd_adjoint).unwrap();
+    check(
+        "svd",
+        fd,
+        dotm(&w.get::<TrialDeformationAdj>(e).unwrap().0, &d),
+    );
+}
+
+#[test]
+fn constitutive_drucker_prager() {
+    let mut rng = Rng(3);
+    let (mut w, e) = world(&mut rng);
+    w.run_system_once(systems::svd::svd).unwrap();
+    let s0 = w.get::<SvdFactors>(e).unwrap().clone();
+    let c0 = w.get::<AffineVelocity>(e).unwrap().0.clone();
+    let (wf, wa) = (rng.ms(N), rng.ms(N));
+    let (du, ds, dv, dc) = (rng.ms(N), rng.vs(N), rng.ms(N), rng.ms(N));
+    let ds: Vec<DVec3> = ds.iter().map(|d| *d * 0.01).collect();
+    let loss = |w: &mut World, s: f64| {
+        let mut f = w.get_mut::<SvdFactors>(e).unwrap();
+        f.u = axpy_m(&s0.u, s, &du);
+        f.s = axpy_v(&s0.s, s, &ds);
+        f.v = axpy_m(&s0.v, s, &dv);
+        w.get_mut::<AffineVelocity>(e).unwrap().0 = axpy_m(&c0, s, &dc);
+        w.run_system_once(systems::constitutive::constitutive_model::<DruckerPrager>)
+            .unwrap();
+        dotm(&w.get::<DeformationGradient>(e).unwrap().0, &wf)
+            + dotm(&w.get::<P2gAffine>(e).unwrap().0, &wa)
+    };
+    let fd = (loss(&mut w, FD_EPS) - loss(&mut w, -FD_EPS)) / (2.0 * FD_EPS);
+    loss(&mut w, 0.0);
+    w.get_mut::<DeformationGradientAdj>(e).unwrap().0 = wf;
+    w.get_mut::<P2gAffineAdj>(e).unwrap().0 = wa;
+    w.run_system_once(adjoint::constitutive::constitutive_model_adjoint::<DruckerPrager>)
+        .unwrap();
+    let g = w.get::<SvdFactorsAdj>(e).unwrap();
+    let ad = dotm(&g.u, &du)
+        + dotv(&g.s, &ds)
+        + dotm(&g.v, &dv)
+        + dotm(&w.get::<AffineVelocityAdj>(e).unwrap().0, &dc);
+    check("constitutive<DruckerPrager>", fd, ad);
+}
+
+#[test]
+fn p2g() {
+    let mut rng = Rng(4);
+    let (mut w, e) = world(&mut rng);
+    let (x0, v0, a0) = (
+        w.get::<Position>(e).unwrap().0.clone(),
+        w.get::<Velocity>(e).unwrap().0.clone(),
+        w.get::<P2gAffine>(e).unwrap().0.clone(),
+    );
+    let wg = rng.vs(NG * NG * NG);
+    let (dxp, dv, da) = (rng.vs(N), rng.vs(N), rng.ms(N));
+    let dxp: Vec<DVec3> = dxp.iter().map(|d| *d * 1e-3).collect();
+    let loss = |w: &mut World, s: f64| {
+        w.get_mut::<Position>(e).unwrap().0 = axpy_v(&x0, s, &dxp);
+        w.get_mut::<Velocity>(e).unwrap().0 = axpy_v(&v0, s, &dv);
+        w.get_mut::<P2gAffine>(e).unwrap().0 = axpy_m(&a0, s, &da);
+        w.run_system_once(systems::grid_reset::grid_reset).unwrap();
+        w.run_system_once(systems::p2g::p2g).unwrap();
+        dotv(&w.resource::<Grid>().velocity, &wg)
+    };
+    let fd = (loss(&mut w, FD_EPS) - loss(&mut w, -FD_EPS)) / (2.0 * FD_EPS);
+    loss(&mut w, 0.0);
+    w.get_mut::<SubstepStart>(e).unwrap().x = x0;
+    w.get_mut::<SubstepStart>(e).unwrap().v = v0;
+    w.resource_mut::<GridAdj>().velocity = wg;
+    w.run_system_once(adjoint::p2g::p2g_adjoint).unwrap();
+    let ad = dotv(&w.get::<PositionAdj>(e).unwrap().0, &dxp)
+        + dotv(&w.get::<VelocityAdj>(e).unwrap().0, &dv)
+        + dotm(&w.get::<P2gAffineAdj>(e).unwrap().0, &da);
+    check("p2g", fd, ad);
+}
+
+#[test]
+fn g2p() {
+    let mut rng = Rng(5);
+    let (mut w, e) = world(&mut rng);
+    w.run_system_once(systems::grid_reset::grid_reset).unwrap();
+    w.run_system_once(systems::p2g::p2g).unwrap();
+    let x0 = w.get::<Position>(e).unwrap().0.clone();
+    let gv0 = rng.vs(NG * NG * NG);
+    let (wv, wc) = (rng.vs(N), rng.ms(N));
+    let (dxp, dg) = (rng.vs(N), rng.vs(NG * NG * NG));
+    let dxp: Vec<DVec3> = dxp.iter().map(|d| *d * 1e-3).collect();
+    let loss = |w: &mut World, s: f64| {
+        w.get_mut::<Position>(e).unwrap().0 = axpy_v(&x0, s, &dxp);
+        w.resource_mut::<Grid>().velocity = axpy_v(&gv0, s, &dg);
+        w.run_system_once(systems::g2p::g2p).unwrap();
+        dotv(&w.get::<Velocity>(e).unwrap().0, &wv)
+            + dotm(&w.get::<AffineVelocity>(e).unwrap().0, &wc)
+    };
+    let fd = (loss(&mut w, FD_EPS) - loss(&mut w, -FD_EPS)) / (2.0 * FD_EPS);
+    loss(&mut w, 0.0);
+    w.get_mut::<SubstepStart>(e).unwrap().x = x0;
+    w.get_mut::<VelocityAdj>(e).unwrap().0 = wv;
+    w.get_mut::<AffineVelocityAdj>(e).unwrap().0 = wc;
+    w.run_system_once(adjoint::g2p::g2p_adjoint).unwrap();
+    let ad = dotv(&w.get::<PositionAdj>(e).unwrap().0, &dxp)
+        + dotv(&w.resource::<GridAdj>().velocity, &dg);
+    check("g2p", fd, ad);
+}
+
+#[test]
+fn advect() {
+    let mut rng = Rng(6);
+    let (mut w, e) = world(&mut rng);
+    let (x0, v0) = (
+        w.get::<Position>(e).unwrap().0.clone(),
+        w.get::<Velocity>(e).unwrap().0.clone(),
+    );
+    let (wx, dxp, dv) = (rng.vs(N), rng.vs(N), rng.vs(N));
+    let loss = |w: &mut World, s: f64| {
+        w.get_mut::<Position>(e).unwrap().0 = axpy_v(&x0, s, &dxp);
+        w.get_mut::<Velocity>(e).unwrap().0 = axpy_v(&v0, s, &dv);
+        w.run_system_once(systems::advect::advect).unwrap();
+        dotv(&w.get::<Position>(e).unwrap().0, &wx)
+    };
+    let fd = (loss(&mut w, FD_EPS) - loss(&mut w, -FD_EPS)) / (2.0 * FD_EPS);
+    w.get_mut::<Position>(e).unwrap().0 = x0;
+    w.get_mut::<Velocity>(e).unwrap().0 = v0;
+    w.get_mut::<PositionAdj>(e).unwrap().0 = wx;
+    w.run_system_once(adjoint::advect::advect_adjoint).unwrap();
+    check(
+        "advect",
+        fd,
+        dotv(&w.get::<PositionAdj>(e).unwrap().0, &dxp)
+            + dotv(&w.get::<VelocityAdj>(e).unwrap().0, &dv),
+    );
+}
+
+#[test]
+fn gravity_and_domain_walls() {
+    let mut rng = Rng(7);
+    let (mut w, _) = world(&mut rng);
+    w.run_system_once(systems::grid_reset::grid_reset).unwrap();
+    w.run_system_once(systems::p2g::p2g).unwrap();
+    // Every node non-empty, so gravity acts everywhere and the walls see real velocities.
+    w.resource_mut::<Grid>()
+        .mass
+        .iter_mut()
+        .for_each(|m| *m = 1.0);
+    let len = NG * NG * NG;
+    let v0 = rng.vs(len);
+    let (wv, dv, dg) = (rng.vs(len), rng.vs(len), rng.v());
+    let g0 = w.resource::<SimParams>().gravity;
+    let loss = |w: &mut World, s: f64| {
+        w.resource_mut::<Grid>().velocity = axpy_v(&v0, s, &dv);
+        w.resource_mut::<SimParams>().gravity = g0 + dg * s;
+        w.run_system_once(systems::gravity::gravity).unwrap();
+        w.run_system_once(systems::grid_collision::domain_walls)
+            .unwrap();
+        dotv(&w.resource::<Grid>().velocity, &wv)
+    };
+    let fd = (loss(&mut w, FD_EPS) - loss(&mut w, -FD_EPS)) / (2.0 * FD_EPS);
+    w.resource_mut::<SimParams>().gravity = g0;
+    w.resource_mut::<Grid>().velocity = v0.clone();
+    w.run_system_once(systems::gravity::gravity).unwrap();
+    let after_gravity = w.resource::<Grid>().velocity.clone();
+    w.resource_mut::<WallInputVelocity>().0 = after_gravity;
+    w.resource_mut::<GridAdj>().velocity = wv;
+    w.run_system_once(adjoint::grid_collision::domain_walls_adjoint)
+        .unwrap();
+    w.run_system_once(adjoint::gravity::gravity_adjoint)
+        .unwrap();
+    let ad = dotv(&w.resource::<GridAdj>().velocity, &dv) + w.resource::<GravityAdj>().0.dot(dg);
+    check("gravity + domain walls", fd, ad);
+}
