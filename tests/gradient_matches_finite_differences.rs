@@ -119,10 +119,47 @@ fn a_budget_below_the_smallest_tape_is_refused() {
 }
 
 #[test]
-fn scenes_with_colliders_are_refused_not_silently_wrong() {
+fn scenes_with_tools_are_refused_not_silently_wrong() {
     let mut sim = common::build(&common::load("sand_box.ron"), 1);
     let err = gradient(&mut sim, 1, &Loss::MeanL1(target()), Tape::Budget(1 << 30))
         .unwrap_err()
         .to_string();
-    assert!(err.contains("collider contact"), "{err}");
+    assert!(err.contains("kinematic tools"), "{err}");
+}
+
+/// The same sand on a rough floor (a static Plane container, friction 0.4): the friction
+/// gradient and the initial-velocity gradient through frictional contact.
+#[test]
+fn gradient_through_a_frictional_floor() {
+    let src = SRC
+        .replace("Box(min: (0.05, 0.03, 0.04), max: (0.08, 0.09, 0.07))", "Box(min: (0.05, 0.05, 0.04), max: (0.08, 0.09, 0.07))")
+        .replace(
+            "velocity: (0.2, 0.0, 0.0))],",
+            "velocity: (0.2, 0.0, 0.0))],\n    colliders: [(name: \"floor\", kind: Container, shape: Plane(normal: (0.0, 1.0, 0.0)),\n                 position: (0.0, 0.045, 0.0), friction: 0.4, particle_contact: false)],",
+        );
+    let scene = common::parse(&src).unwrap();
+    assert_eq!(scene.colliders.len(), 1);
+    let g = run(&scene, 2, Tape::Budget(1 << 30));
+    let eps = 1e-6;
+    let with_mu = |d: f64| {
+        let mut s = scene.clone();
+        s.colliders[0].friction += d;
+        loss(&s)
+    };
+    close(
+        (with_mu(eps) - with_mu(-eps)) / (2.0 * eps),
+        g.friction[0].1,
+        "dL/dmu(floor)",
+    );
+    let shift = |d: f64| {
+        let mut s = scene.clone();
+        s.bodies[0].velocity.0 += d;
+        loss(&s)
+    };
+    let ad: f64 = g.v0[0].iter().map(|v| v.x).sum();
+    close(
+        (shift(eps) - shift(-eps)) / (2.0 * eps),
+        ad,
+        "dL/d(shift v0.x) with floor friction",
+    );
 }

@@ -4,8 +4,12 @@
 //! reverse. Exact inside each contact regime, one-sided at the switches (see
 //! `crate::math::contact`).
 //!
-//! Collider contact (tools and containers) is not differentiated yet: the backward driver
-//! refuses scenes with colliders rather than return a wrong gradient.
+//! Static containers: the adjoint replays each node's sequence of container responses from the
+//! stored input velocity (the normal and band test depend only on the node position, which is
+//! fixed) and reverses it, accumulating `∂L/∂v` and `∂L/∂μ` per container. The band test
+//! `φ < band` is a contact on/off switch: the gradient is that of the side the forward pass
+//! took (one-sided). Kinematic tools (whose pose depends on the controls) are not
+//! differentiated yet: the backward driver refuses scenes with tools.
 
 use crate::components::*;
 use crate::math::contact::{contact_response, contact_response_adj};
@@ -16,6 +20,80 @@ use rayon::prelude::*;
 /// Grid velocity entering the domain-wall response, saved by the backward driver.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct WallInputVelocity(pub Vec<DVec3>);
+
+/// Grid velocity entering the collider response, saved by the backward driver.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct ColliderInputVelocity(pub Vec<DVec3>);
+
+/// `∂L/∂μ` of a collider's friction coefficient.
+#[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
+pub struct ColliderAdj {
+    pub friction: f64,
+}
+
+/// Nodes per chunk of the friction-gradient reduction (fixed, so the sum order is too).
+const REDUCE_CHUNK: usize = 4096;
+
+/// Most colliders a node's response sequence is replayed for.
+const MAX_COLLIDERS: usize = 8;
+
+pub fn collider_contact_adjoint(
+    params: Res<SimParams>,
+    grid: Res<Grid>,
+    input: Res<ColliderInputVelocity>,
+    mut adj: ResMut<GridAdj>,
+    mut colliders: Query<(&Collider, &ColliderPose, &mut ColliderAdj)>,
+) {
+    let mut cs: Vec<_> = colliders.iter_mut().collect();
+    cs.sort_by_key(|c| c.0.index);
+    assert!(
+        cs.len() <= MAX_COLLIDERS,
+        "the backward driver refuses more than {MAX_COLLIDERS} colliders"
+    );
+    let m_min = params.empty_node_mass;
+    let nc = cs.len();
+    let view: Vec<(&Collider, &ColliderPose)> = cs.iter().map(|(c, p, _)| (*c, *p)).collect();
+    let mut g_mu = vec![[0.0f64; MAX_COLLIDERS]; adj.velocity.len()];
+    adj.velocity
+        .par_iter_mut()
+        .zip(g_mu.par_iter_mut())
+        .enumerate()
+        .for_each(|(idx, (g, gmu))| {
+            if grid.mass[idx] <= m_min {
+                return;
+            }
+            let x = grid.node_position(idx);
+            let mut hits = [(0usize, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
+            let mut count = 0;
+            let mut v = input.0[idx];
+            for (ci, (c, pose)) in view.iter().enumerate() {
+                let reach = c.shape.bounding_radius() + c.band;
+                if (x - pose.pose.translation).length_squared() > reach * reach {
+                    continue;
+                }
+                let (phi, normal) = pose.sdf(&c.shape, x);
+                if phi < c.band {
+                    let vb = pose.velocity_at(x);
+                    hits[count] = (ci, v, normal, vb);
+                    v = contact_response(v, vb, normal, c.contact, c.friction);
+                    count += 1;
+                }
+            }
+            for &(ci, vin, normal, vb) in hits[..count].iter().rev() {
+                let c = view[ci].0;
+                let a = contact_response_adj(vin, vb, normal, c.contact, c.friction, *g);
+                *g = a.v;
+                gmu[ci] += a.mu;
+            }
+        });
+    for (ci, (_, _, ca)) in cs.iter_mut().enumerate().take(nc) {
+        let partial: Vec<f64> = g_mu
+            .par_chunks(REDUCE_CHUNK)
+            .map(|ch| ch.iter().map(|g| g[ci]).sum::<f64>())
+            .collect();
+        ca.friction += partial.iter().sum::<f64>();
+    }
+}
 
 pub fn domain_walls_adjoint(
     walls: Res<DomainWalls>,

@@ -12,8 +12,9 @@
 //! [`SubstepStart`](crate::components::SubstepStart) for the stages whose inputs were
 //! overwritten in place.
 //!
-//! Not yet differentiated, and refused loudly by the backward driver: SDF colliders (tool
-//! move, collider contact, particle collision) and Klár hardening.
+//! Not yet differentiated, and refused loudly by the backward driver: kinematic tools (tool
+//! move and contact with a moving pose), particle collision (thin walls) and Klár hardening.
+//! Static containers with grid contact only are differentiated (velocity and friction).
 
 pub mod advect;
 pub mod constitutive;
@@ -68,7 +69,19 @@ pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPl
             schedule.add_systems(gravity::gravity_adjoint.in_set(stage));
         }
         Stage::GridCollision => {
-            schedule.add_systems(grid_collision::domain_walls_adjoint.in_set(stage));
+            if plan.has_colliders {
+                // Reverse of the forward chain (colliders, then walls).
+                schedule.add_systems(
+                    (
+                        grid_collision::domain_walls_adjoint,
+                        grid_collision::collider_contact_adjoint,
+                    )
+                        .chain()
+                        .in_set(stage),
+                );
+            } else {
+                schedule.add_systems(grid_collision::domain_walls_adjoint.in_set(stage));
+            }
         }
         Stage::G2p => {
             schedule.add_systems(g2p::g2p_adjoint.in_set(stage));

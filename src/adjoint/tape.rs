@@ -13,7 +13,7 @@
 //! on `k` or on the thread count.
 
 use crate::adjoint::gravity::GravityAdj;
-use crate::adjoint::grid_collision::WallInputVelocity;
+use crate::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity, WallInputVelocity};
 use crate::adjoint::{add_adjoint_stage, SubstepAdjoint};
 use crate::components::*;
 use crate::error::AdjointError;
@@ -174,6 +174,8 @@ pub struct Gradients {
     pub material: Vec<MaterialAdj>,
     /// `∂L/∂g`.
     pub gravity: DVec3,
+    /// `∂L/∂μ` per collider (name, gradient), in scene order.
+    pub friction: Vec<(String, f64)>,
     /// Checkpoint interval used, in global steps.
     pub checkpoint_every: usize,
     /// Bytes of particle state held at the peak (checkpoints + one segment + one step).
@@ -279,9 +281,19 @@ pub fn gradient(
     loss: &Loss,
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
-    if sim.plan.has_colliders {
+    if sim.plan.has_tools {
         return Err(AdjointError::NotDifferentiable(
-            "collider contact (tools and containers) has no adjoint yet".into(),
+            "kinematic tools (tool move and moving contact) have no adjoint yet".into(),
+        ));
+    }
+    if sim.plan.particle_contact {
+        return Err(AdjointError::NotDifferentiable(
+            "particle collision (colliders with particle_contact: true) has no adjoint yet".into(),
+        ));
+    }
+    if sim.scene.colliders.len() > 8 {
+        return Err(AdjointError::NotDifferentiable(
+            "more than 8 colliders".into(),
         ));
     }
     if sim.plan.materials.iter().any(|m| m.hardens()) {
@@ -322,6 +334,16 @@ pub fn gradient(
     sim.world.insert_resource(GravityAdj::default());
     sim.world
         .insert_resource(WallInputVelocity(vec![DVec3::ZERO; len]));
+    sim.world
+        .insert_resource(ColliderInputVelocity(vec![DVec3::ZERO; len]));
+    let collider_ents: Vec<Entity> = sim
+        .world
+        .query_filtered::<Entity, With<Collider>>()
+        .iter(&sim.world)
+        .collect();
+    for &e in &collider_ents {
+        sim.world.entity_mut(e).insert(ColliderAdj::default());
+    }
     let ents: Vec<(Entity, usize, usize)> = sim
         .world
         .query::<(Entity, &Body, &Position)>()
@@ -365,6 +387,10 @@ pub fn gradient(
         })
         .collect();
     let mut forward = forward;
+    let mut collider_only = new_schedule();
+    collider_only.add_systems(systems::grid_collision::collider_contact);
+    let mut walls_only = new_schedule();
+    walls_only.add_systems(systems::grid_collision::domain_walls);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(sim.threads())
         .build()
@@ -406,8 +432,21 @@ pub fn gradient(
                 }
                 for (stage, s) in forward.iter_mut() {
                     if *stage == Stage::GridCollision {
+                        // Save the inputs of the collider and wall responses for their adjoints.
+                        let v = sim.world.resource::<Grid>().velocity.clone();
+                        sim.world
+                            .resource_mut::<ColliderInputVelocity>()
+                            .0
+                            .clone_from(&v);
+                        if plan.has_colliders {
+                            let world = &mut sim.world;
+                            pool.install(|| collider_only.run(world));
+                        }
                         let v = sim.world.resource::<Grid>().velocity.clone();
                         sim.world.resource_mut::<WallInputVelocity>().0 = v;
+                        let world = &mut sim.world;
+                        pool.install(|| walls_only.run(world));
+                        continue;
                     }
                     let world = &mut sim.world;
                     pool.install(|| s.run(world));
@@ -430,6 +469,16 @@ pub fn gradient(
         .collect();
     per.sort_by_key(|e| e.0);
     let gravity = sim.world.resource::<GravityAdj>().0;
+    let mut cq = sim.world.query::<(&Collider, &ColliderAdj)>();
+    let mut friction: Vec<(usize, String, f64)> = cq
+        .iter(&sim.world)
+        .map(|(c, a)| (c.index, c.name.clone(), a.friction))
+        .collect();
+    friction.sort_by_key(|e| e.0);
+    for &e in &collider_ents {
+        sim.world.entity_mut(e).remove::<ColliderAdj>();
+    }
+    sim.world.remove_resource::<ColliderInputVelocity>();
     // Leave the world at the final forward state, without adjoint buffers.
     for &(e, _, _) in &ents {
         sim.world.entity_mut(e).remove::<(
@@ -458,6 +507,7 @@ pub fn gradient(
         v0: per.iter().map(|e| e.2.clone()).collect(),
         material: per.iter().map(|e| e.3).collect(),
         gravity,
+        friction: friction.into_iter().map(|e| (e.1, e.2)).collect(),
         checkpoint_every: k,
         tape_bytes: peak_snaps * snap_bytes,
     })
