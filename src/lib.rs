@@ -32,6 +32,7 @@ pub type Real = f64;
 pub mod adjoint;
 pub mod components;
 pub mod error;
+pub mod gradcheck;
 pub mod materials;
 pub mod math;
 pub mod mesh;

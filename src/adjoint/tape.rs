@@ -188,24 +188,28 @@ pub fn tape_snapshots(steps: usize, substeps: usize, k: usize) -> usize {
     steps.div_ceil(k) + k + substeps
 }
 
-/// The checkpoint interval with the smallest tape (`k ≈ √T`; every `k` costs the same
-/// recomputation, one extra forward pass), or an error if even that exceeds `budget_bytes`.
+/// The checkpoint interval for a memory budget: the largest `k` whose tape fits (the first
+/// forward pass keeps the last segment's step states, so the recomputation is the forward pass
+/// minus the last segment); an error if even the smallest tape (`k ≈ √T`) does not fit.
 pub fn checkpoint_interval(
     steps: usize,
     substeps: usize,
     snapshot_bytes: usize,
     budget_bytes: usize,
 ) -> Result<usize, AdjointError> {
+    // The last segment's step states are kept from the first forward pass, so a longer
+    // segment saves recomputation: take the largest k that fits, else the smallest tape.
+    let fits = |k: usize| tape_snapshots(steps, substeps, k) * snapshot_bytes <= budget_bytes;
+    if let Some(k) = (1..=steps.max(1)).rev().find(|&k| fits(k)) {
+        return Ok(k);
+    }
     let k = (1..=steps.max(1))
         .min_by_key(|&k| (tape_snapshots(steps, substeps, k), usize::MAX - k))
         .unwrap_or(1);
     let need = tape_snapshots(steps, substeps, k) * snapshot_bytes;
-    if need > budget_bytes {
-        return Err(AdjointError::NotDifferentiable(format!(
-            "the smallest tape for {steps} steps (checkpoint every {k} steps) needs {need} bytes, over the memory budget of {budget_bytes} bytes: raise the budget or shorten the horizon"
-        )));
-    }
-    Ok(k)
+    Err(AdjointError::NotDifferentiable(format!(
+        "the smallest tape for {steps} steps (checkpoint every {k} steps) needs {need} bytes, over the memory budget of {budget_bytes} bytes: raise the budget or shorten the horizon"
+    )))
 }
 
 /// How the backward pass chooses its checkpoint interval.
@@ -314,9 +318,14 @@ pub fn gradient(
     };
     // Forward, keeping a checkpoint every k steps.
     let mut checkpoints = Vec::with_capacity(steps.div_ceil(k));
+    let last_segment = (steps - 1) / k * k;
+    let mut last_starts = Vec::new();
     for s in 0..steps {
         if s % k == 0 {
             checkpoints.push(snapshot(&mut sim.world));
+        }
+        if s >= last_segment {
+            last_starts.push(snapshot(&mut sim.world));
         }
         sim.step()?;
     }
@@ -400,13 +409,18 @@ pub fn gradient(
     for (ci, cp) in checkpoints.iter().enumerate().rev() {
         let s0 = ci * k;
         let s1 = (s0 + k).min(steps);
-        // Step-start states of the segment.
-        restore(&mut sim.world, cp);
-        let mut step_starts = Vec::with_capacity(s1 - s0);
-        for _ in s0..s1 {
-            step_starts.push(snapshot(&mut sim.world));
-            sim.step()?;
-        }
+        // Step-start states of the segment (kept from the first pass for the last segment).
+        let step_starts = if s0 == last_segment {
+            std::mem::take(&mut last_starts)
+        } else {
+            restore(&mut sim.world, cp);
+            let mut v = Vec::with_capacity(s1 - s0);
+            for _ in s0..s1 {
+                v.push(snapshot(&mut sim.world));
+                sim.step()?;
+            }
+            v
+        };
         for (si, ss) in step_starts.iter().enumerate().rev() {
             let step = s0 + si;
             // Substep-start states of the step.

@@ -1,0 +1,272 @@
+//! `powderlab gradcheck`: adjoint gradients against central differences in f64, per parameter.
+//!
+//! The loss is `L = Σ_p ‖x_p(T) − t‖` (seed paper eq. 5) with `t` the bottom centre of the task's
+//! target cup, or the centre of the domain floor when the scene has no task. Parameters are
+//! scalar directions: a uniform shift of all initial velocities or positions along an axis,
+//! each material's E, ν and friction angle, each collider's friction, and gravity's y.
+
+use crate::adjoint::tape::{gradient, Loss, Tape};
+use crate::components::{Position, Velocity};
+use crate::materials::MaterialSpec;
+use crate::math::sdf::Shape;
+use crate::scene::Scene;
+use crate::sim::{SimOptions, Simulation};
+use glam::DVec3;
+use serde::Serialize;
+
+/// One compared parameter.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub parameter: String,
+    pub adjoint: f64,
+    pub finite_difference: f64,
+    pub rel_error: f64,
+    pub eps: f64,
+    /// Absolute size below which a central difference is round-off (see [`FD_NOISE_ULPS`]).
+    pub noise_floor: f64,
+}
+
+/// A central difference `(L₊ − L₋)/2ε` carries a round-off of a few ulps of `L` over `ε`, more
+/// for a loss summed over many particles; gradients below `FD_NOISE_ULPS·ε_mach·|L|/ε` are
+/// compared against that floor instead of their own size (a zero gradient is then a match).
+pub const FD_NOISE_ULPS: f64 = 1000.0;
+
+/// The whole comparison.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub loss: f64,
+    pub steps: usize,
+    pub target_m: [f64; 3],
+    pub rows: Vec<Row>,
+    pub max_rel_error: f64,
+    pub checkpoint_every: usize,
+    pub tape_bytes: usize,
+    pub forward_s: f64,
+    pub forward_backward_s: f64,
+}
+
+/// The loss target of a scene.
+pub fn loss_target(scene: &Scene) -> DVec3 {
+    if let Some(t) = &scene.task {
+        if let Some(c) = scene.colliders.iter().find(|c| c.name == t.target) {
+            if let Shape::Cup {
+                floor_thickness, ..
+            } = c.shape
+            {
+                return DVec3::from(c.position)
+                    + Scene::collider_rotation(c) * DVec3::new(0.0, floor_thickness, 0.0);
+            }
+        }
+    }
+    let (lo, hi) = scene.domain();
+    DVec3::new(0.5 * (lo.x + hi.x), lo.y, 0.5 * (lo.z + hi.z))
+}
+
+fn forward_loss(
+    scene: &Scene,
+    steps: usize,
+    threads: Option<usize>,
+    dv: DVec3,
+    dx: DVec3,
+    target: DVec3,
+) -> anyhow::Result<f64> {
+    let mut sim = Simulation::new(
+        scene,
+        &SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    shift_state(&mut sim, dv, dx);
+    sim.run(steps, |_| {})?;
+    let xs: Vec<Vec<DVec3>> = sim.body_states().into_iter().map(|b| b.x).collect();
+    Ok(Loss::SumDistance(target).eval(&xs).0)
+}
+
+fn shift_state(sim: &mut Simulation, dv: DVec3, dx: DVec3) {
+    if dv != DVec3::ZERO {
+        for mut v in sim.world.query::<&mut Velocity>().iter_mut(&mut sim.world) {
+            v.0.iter_mut().for_each(|v| *v += dv);
+        }
+    }
+    if dx != DVec3::ZERO {
+        for mut x in sim.world.query::<&mut Position>().iter_mut(&mut sim.world) {
+            x.0.iter_mut().for_each(|x| *x += dx);
+        }
+    }
+}
+
+/// Parameter groups `gradcheck` knows.
+pub const GROUPS: [&str; 5] = ["v0", "x0", "material", "friction", "gravity"];
+
+/// Runs the comparison for the chosen parameter groups.
+pub fn run(
+    scene: &Scene,
+    steps: usize,
+    groups: &[String],
+    threads: Option<usize>,
+    budget_bytes: usize,
+) -> anyhow::Result<Report> {
+    for g in groups {
+        anyhow::ensure!(
+            GROUPS.contains(&g.as_str()),
+            "unknown parameter group '{g}': expected some of {GROUPS:?}"
+        );
+    }
+    let target = loss_target(scene);
+    let t0 = std::time::Instant::now();
+    let base = forward_loss(scene, steps, threads, DVec3::ZERO, DVec3::ZERO, target)?;
+    let forward_s = t0.elapsed().as_secs_f64();
+    let mut sim = Simulation::new(
+        scene,
+        &SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    let t1 = std::time::Instant::now();
+    let g = gradient(
+        &mut sim,
+        steps,
+        &Loss::SumDistance(target),
+        Tape::Budget(budget_bytes),
+    )?;
+    let forward_backward_s = t1.elapsed().as_secs_f64();
+    let mut rows = Vec::new();
+    let loss_scale = base.abs();
+    let mut push = |parameter: String, adjoint: f64, plus: f64, minus: f64, eps: f64| {
+        let fd = (plus - minus) / (2.0 * eps);
+        let noise_floor = FD_NOISE_ULPS * f64::EPSILON * loss_scale / eps;
+        let rel_error =
+            (fd - adjoint).abs() / fd.abs().max(adjoint.abs()).max(noise_floor).max(1e-300);
+        rows.push(Row {
+            parameter,
+            adjoint,
+            finite_difference: fd,
+            rel_error,
+            eps,
+            noise_floor,
+        });
+    };
+    let has = |name: &str| groups.iter().any(|g| g == name);
+    let axes = [("x", DVec3::X), ("y", DVec3::Y), ("z", DVec3::Z)];
+    if has("v0") {
+        let eps = 1e-6;
+        for (k, (name, e)) in axes.iter().enumerate() {
+            let ad: f64 = g.v0.iter().flatten().map(|v| v[k]).sum();
+            let p = forward_loss(scene, steps, threads, *e * eps, DVec3::ZERO, target)?;
+            let m = forward_loss(scene, steps, threads, *e * -eps, DVec3::ZERO, target)?;
+            push(format!("v0.{name} (uniform shift)"), ad, p, m, eps);
+        }
+    }
+    if has("x0") {
+        let eps = 1e-7;
+        for (k, (name, e)) in axes.iter().enumerate() {
+            let ad: f64 = g.x0.iter().flatten().map(|v| v[k]).sum();
+            let p = forward_loss(scene, steps, threads, DVec3::ZERO, *e * eps, target)?;
+            let m = forward_loss(scene, steps, threads, DVec3::ZERO, *e * -eps, target)?;
+            push(format!("x0.{name} (uniform shift)"), ad, p, m, eps);
+        }
+    }
+    if has("material") {
+        for (mname, spec) in &scene.materials {
+            let users: Vec<usize> = scene
+                .bodies
+                .iter()
+                .enumerate()
+                .filter(|(_, b)| &b.material == mname)
+                .map(|(i, _)| i)
+                .collect();
+            if users.is_empty() {
+                continue;
+            }
+            let sum = |f: &dyn Fn(&crate::components::MaterialAdj) -> f64| {
+                users.iter().map(|&i| f(&g.material[i])).sum::<f64>()
+            };
+            let (e, is_dp) = match spec {
+                MaterialSpec::DruckerPrager(m) => (m.youngs_modulus, true),
+                MaterialSpec::Elastic(m) => (m.youngs_modulus, false),
+            };
+            type Edit = Box<dyn Fn(&mut MaterialSpec, f64)>;
+            let mut params: Vec<(&str, f64, f64, Edit)> = vec![
+                (
+                    "youngs_modulus",
+                    sum(&|m| m.youngs_modulus),
+                    1e-6 * e,
+                    Box::new(|s, d| match s {
+                        MaterialSpec::DruckerPrager(m) => m.youngs_modulus += d,
+                        MaterialSpec::Elastic(m) => m.youngs_modulus += d,
+                    }),
+                ),
+                (
+                    "poisson_ratio",
+                    sum(&|m| m.poisson_ratio),
+                    1e-6,
+                    Box::new(|s, d| match s {
+                        MaterialSpec::DruckerPrager(m) => m.poisson_ratio += d,
+                        MaterialSpec::Elastic(m) => m.poisson_ratio += d,
+                    }),
+                ),
+            ];
+            if is_dp {
+                params.push((
+                    "friction_deg",
+                    sum(&|m| m.friction_deg),
+                    1e-6,
+                    Box::new(|s, d| {
+                        if let MaterialSpec::DruckerPrager(m) = s {
+                            m.friction_deg += d
+                        }
+                    }),
+                ));
+            }
+            for (pname, ad, eps, edit) in params {
+                let mut sp = scene.clone();
+                edit(sp.materials.get_mut(mname).expect("present"), eps);
+                let mut sm = scene.clone();
+                edit(sm.materials.get_mut(mname).expect("present"), -eps);
+                let p = forward_loss(&sp, steps, threads, DVec3::ZERO, DVec3::ZERO, target)?;
+                let m = forward_loss(&sm, steps, threads, DVec3::ZERO, DVec3::ZERO, target)?;
+                push(format!("materials.{mname}.{pname}"), ad, p, m, eps);
+            }
+        }
+    }
+    if has("friction") {
+        let eps = 1e-6;
+        for (i, (name, ad)) in g.friction.iter().enumerate() {
+            let mut sp = scene.clone();
+            sp.colliders[i].friction += eps;
+            let mut sm = scene.clone();
+            sm.colliders[i].friction = (sm.colliders[i].friction - eps).max(0.0);
+            let e_minus = scene.colliders[i].friction - sm.colliders[i].friction;
+            let p = forward_loss(&sp, steps, threads, DVec3::ZERO, DVec3::ZERO, target)?;
+            let m = forward_loss(&sm, steps, threads, DVec3::ZERO, DVec3::ZERO, target)?;
+            // One-sided at μ = 0 (friction cannot be negative).
+            let fd_eps = 0.5 * (eps + e_minus);
+            push(format!("colliders.{name}.friction"), *ad, p, m, fd_eps);
+        }
+    }
+    if has("gravity") {
+        let eps = 1e-6;
+        let mut sp = scene.clone();
+        sp.simulation.gravity.1 += eps;
+        let mut sm = scene.clone();
+        sm.simulation.gravity.1 -= eps;
+        let p = forward_loss(&sp, steps, threads, DVec3::ZERO, DVec3::ZERO, target)?;
+        let m = forward_loss(&sm, steps, threads, DVec3::ZERO, DVec3::ZERO, target)?;
+        push("gravity.y".into(), g.gravity.y, p, m, eps);
+    }
+    let max_rel_error = rows.iter().map(|r| r.rel_error).fold(0.0, f64::max);
+    debug_assert!((g.loss - base).abs() <= 1e-12 * base.abs().max(1.0));
+    Ok(Report {
+        loss: g.loss,
+        steps,
+        target_m: target.to_array(),
+        rows,
+        max_rel_error,
+        checkpoint_every: g.checkpoint_every,
+        tape_bytes: g.tape_bytes,
+        forward_s,
+        forward_backward_s,
+    })
+}
