@@ -1,0 +1,34 @@
+//! `powderlab gradcheck --json` prints one JSON object with a row per parameter and
+//! `max_rel_error`, and passes on a shipped scene.
+
+use std::process::Command;
+
+#[test]
+fn gradcheck_json_on_free_fall() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/free_fall.ron");
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(["gradcheck", scene, "--steps", "3", "--json"])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}\n{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 9, "v0 ×3, x0 ×3, E, ν, gravity");
+    for r in rows {
+        for key in ["parameter", "adjoint", "finite_difference", "rel_error", "eps"] {
+            assert!(r.get(key).is_some(), "row lacks {key}: {r}");
+        }
+    }
+    assert!(v["max_rel_error"].as_f64().unwrap() <= 1e-3);
+    assert_eq!(v["passed"], true);
+}
+
+#[test]
+fn gradcheck_refuses_a_scene_with_a_tool() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/sand_box.ron");
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab")).args(["gradcheck", scene, "--steps", "1"]).output().unwrap();
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("kinematic tools"), "{err}");
+}
