@@ -14,7 +14,7 @@
 use crate::components::*;
 use crate::math::contact::{contact_response, contact_response_adj};
 use bevy_ecs::prelude::*;
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 /// Grid velocity entering the domain-wall response, saved by the backward driver.
@@ -25,18 +25,40 @@ pub struct WallInputVelocity(pub Vec<DVec3>);
 #[derive(Resource, Clone, Debug, Default)]
 pub struct ColliderInputVelocity(pub Vec<DVec3>);
 
-/// `∂L/∂μ` of a collider's friction coefficient.
+/// Adjoints of a collider's parameters and motion: `∂L/∂μ`, and for a tool `∂L/∂t` (its
+/// current translation) and `∂L/∂v_lin` (its linear velocity over the current substep).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct ColliderAdj {
     pub friction: f64,
+    pub translation: DVec3,
+    pub linear: DVec3,
 }
 
-/// Nodes per chunk of the friction-gradient reduction (fixed, so the sum order is too).
+/// Nodes per chunk of the collider-gradient reduction (fixed, so the sum order is too).
 const REDUCE_CHUNK: usize = 4096;
 
 /// Most colliders a node's response sequence is replayed for.
-const MAX_COLLIDERS: usize = 8;
+pub const MAX_COLLIDERS: usize = 4;
 
+#[derive(Clone, Copy, Default)]
+struct NodeAdj {
+    friction: f64,
+    translation: DVec3,
+    linear: DVec3,
+}
+
+/// Collider contact. For a node with `φ(x_i) < band`, `v′ = response(v, v_b, n)` with
+/// `v_b = v_lin` (tools translate; rotating tools are refused by the backward driver) and
+/// `n = R·∇φ_local(Rᵀ(x_i − t))`, so besides `v̄` and `μ̄`:
+///
+/// ```text
+/// v̄_lin += v̄_b,    t̄ −= R·H·Rᵀ·n̄      (H: Hessian of the local SDF)
+/// ```
+///
+/// Exact within a contact regime; the band edge `φ = band` and the separate/approach switch are
+/// one-sided. The band test itself moves with the tool: a node entering or leaving the band is
+/// a jump the adjoint does not see (the reason finite differences through contact need a
+/// small step, see shared/reference/RESULTS.md).
 pub fn collider_contact_adjoint(
     params: Res<SimParams>,
     grid: Res<Grid>,
@@ -51,14 +73,13 @@ pub fn collider_contact_adjoint(
         "the backward driver refuses more than {MAX_COLLIDERS} colliders"
     );
     let m_min = params.empty_node_mass;
-    let nc = cs.len();
     let view: Vec<(&Collider, &ColliderPose)> = cs.iter().map(|(c, p, _)| (*c, *p)).collect();
-    let mut g_mu = vec![[0.0f64; MAX_COLLIDERS]; adj.velocity.len()];
+    let mut per_node = vec![[NodeAdj::default(); MAX_COLLIDERS]; adj.velocity.len()];
     adj.velocity
         .par_iter_mut()
-        .zip(g_mu.par_iter_mut())
+        .zip(per_node.par_iter_mut())
         .enumerate()
-        .for_each(|(idx, (g, gmu))| {
+        .for_each(|(idx, (g, acc))| {
             if grid.mass[idx] <= m_min {
                 return;
             }
@@ -80,18 +101,34 @@ pub fn collider_contact_adjoint(
                 }
             }
             for &(ci, vin, normal, vb) in hits[..count].iter().rev() {
-                let c = view[ci].0;
+                let (c, pose) = view[ci];
                 let a = contact_response_adj(vin, vb, normal, c.contact, c.friction, *g);
                 *g = a.v;
-                gmu[ci] += a.mu;
+                acc[ci].friction += a.mu;
+                if c.kind == ColliderKind::Tool {
+                    acc[ci].linear += a.v_body;
+                    let r = DMat3::from_quat(pose.pose.rotation);
+                    let h = c.shape.sdf_hessian(pose.pose.to_local(x)).unwrap_or(DMat3::ZERO);
+                    acc[ci].translation -= r * h * r.transpose() * a.n;
+                }
             }
         });
-    for (ci, (_, _, ca)) in cs.iter_mut().enumerate().take(nc) {
-        let partial: Vec<f64> = g_mu
+    for (ci, (_, _, ca)) in cs.iter_mut().enumerate() {
+        let partial: Vec<NodeAdj> = per_node
             .par_chunks(REDUCE_CHUNK)
-            .map(|ch| ch.iter().map(|g| g[ci]).sum::<f64>())
+            .map(|ch| {
+                ch.iter().fold(NodeAdj::default(), |s, n| NodeAdj {
+                    friction: s.friction + n[ci].friction,
+                    translation: s.translation + n[ci].translation,
+                    linear: s.linear + n[ci].linear,
+                })
+            })
             .collect();
-        ca.friction += partial.iter().sum::<f64>();
+        for p in &partial {
+            ca.friction += p.friction;
+            ca.translation += p.translation;
+            ca.linear += p.linear;
+        }
     }
 }
 

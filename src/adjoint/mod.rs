@@ -12,9 +12,9 @@
 //! [`SubstepStart`](crate::components::SubstepStart) for the stages whose inputs were
 //! overwritten in place.
 //!
-//! Not yet differentiated, and refused loudly by the backward driver: kinematic tools (tool
-//! move and contact with a moving pose), particle collision (thin walls) and Klár hardening.
-//! Static containers with grid contact only are differentiated (velocity and friction).
+//! Not yet differentiated, and refused loudly by the backward driver: rotating tools, tool
+//! shapes without an SDF Hessian (cylinder, cup, spoon), particle collision (thin walls) and
+//! Klár hardening. Containers and translating tools with grid contact are differentiated.
 
 pub mod advect;
 pub mod constitutive;
@@ -26,6 +26,7 @@ pub mod grid_reset;
 pub mod p2g;
 pub mod svd;
 pub mod tape;
+pub mod tool_move;
 
 use crate::systems::{new_schedule, Stage, SubstepPlan};
 use bevy_ecs::prelude::*;
@@ -89,7 +90,13 @@ pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPl
         Stage::Advect => {
             schedule.add_systems(advect::advect_adjoint.in_set(stage));
         }
-        Stage::ToolMove | Stage::ParticleCollision => return false,
+        Stage::ToolMove => {
+            if !plan.has_tools {
+                return false;
+            }
+            schedule.add_systems(tool_move::tool_move_adjoint.in_set(stage));
+        }
+        Stage::ParticleCollision => return false,
     }
     true
 }

@@ -14,6 +14,8 @@
 
 use crate::adjoint::gravity::GravityAdj;
 use crate::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity, WallInputVelocity};
+use crate::adjoint::tool_move::ControlAdj;
+use crate::math::sdf::Shape;
 use crate::adjoint::{add_adjoint_stage, SubstepAdjoint};
 use crate::components::*;
 use crate::error::AdjointError;
@@ -26,6 +28,8 @@ use glam::{DMat3, DVec3};
 #[derive(Clone, Debug)]
 pub struct Snapshot {
     pub bodies: Vec<BodySnap>,
+    /// Collider poses in scene order (tools move).
+    pub colliders: Vec<ColliderPose>,
     pub clock: Clock,
 }
 
@@ -76,7 +80,11 @@ pub fn snapshot(world: &mut World) -> Snapshot {
         })
         .collect();
     b.sort_by_key(|e| e.0);
+    let mut cq = world.query::<(&Collider, &ColliderPose)>();
+    let mut cs: Vec<(usize, ColliderPose)> = cq.iter(world).map(|(c, p)| (c.index, *p)).collect();
+    cs.sort_by_key(|e| e.0);
     Snapshot {
+        colliders: cs.into_iter().map(|e| e.1).collect(),
         bodies: b.into_iter().map(|e| e.1).collect(),
         clock: *world.resource::<Clock>(),
     }
@@ -101,6 +109,10 @@ pub fn restore(world: &mut World, snap: &Snapshot) {
         s.v.clone_from(&sn.svd_v);
     }
     *world.resource_mut::<Clock>() = snap.clock;
+    let mut cq = world.query::<(&Collider, &mut ColliderPose)>();
+    for (c, mut p) in cq.iter_mut(world) {
+        *p = snap.colliders[c.index];
+    }
 }
 
 /// A loss on the final particle positions.
@@ -176,6 +188,10 @@ pub struct Gradients {
     pub gravity: DVec3,
     /// `∂L/∂μ` per collider (name, gradient), in scene order.
     pub friction: Vec<(String, f64)>,
+    /// `∂L/∂t(0)`: the gradient with respect to each tool's start position.
+    pub tool_start: Vec<(String, DVec3)>,
+    /// `∂L/∂u` per global step of each tool's control sequence (translation, rotation vector).
+    pub controls: Vec<(String, Vec<[f64; 6]>)>,
     /// Checkpoint interval used, in global steps.
     pub checkpoint_every: usize,
     /// Bytes of particle state held at the peak (checkpoints + one segment + one step).
@@ -285,10 +301,26 @@ pub fn gradient(
     loss: &Loss,
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
-    if sim.plan.has_tools {
-        return Err(AdjointError::NotDifferentiable(
-            "kinematic tools (tool move and moving contact) have no adjoint yet".into(),
-        ));
+    for c in &sim.scene.colliders {
+        if c.kind != crate::scene::ColliderKindSpec::Tool {
+            continue;
+        }
+        if c.shape.sdf_hessian(DVec3::ZERO).is_none() {
+            return Err(AdjointError::NotDifferentiable(format!(
+                "tool '{}': the contact adjoint of a moving {} needs its SDF Hessian, not implemented yet (box, sphere, capsule and plane tools are differentiable)",
+                c.name,
+                shape_name(&c.shape)
+            )));
+        }
+    }
+    {
+        let mut q = sim.world.query::<(&Collider, &Control)>();
+        if let Some((c, _)) = q.iter(&sim.world).find(|(_, u)| u.per_step.iter().any(|u| u[3] != 0.0 || u[4] != 0.0 || u[5] != 0.0)) {
+            return Err(AdjointError::NotDifferentiable(format!(
+                "tool '{}' rotates: rotating tools have no adjoint yet (translating tools do)",
+                c.name
+            )));
+        }
     }
     if sim.plan.particle_contact {
         return Err(AdjointError::NotDifferentiable(
@@ -352,6 +384,10 @@ pub fn gradient(
         .collect();
     for &e in &collider_ents {
         sim.world.entity_mut(e).insert(ColliderAdj::default());
+        let n = sim.world.get::<Control>(e).map(|c| c.per_step.len());
+        if let Some(n) = n {
+            sim.world.entity_mut(e).insert(ControlAdj(vec![[0.0; 6]; n]));
+        }
     }
     let ents: Vec<(Entity, usize, usize)> = sim
         .world
@@ -484,13 +520,19 @@ pub fn gradient(
     per.sort_by_key(|e| e.0);
     let gravity = sim.world.resource::<GravityAdj>().0;
     let mut cq = sim.world.query::<(&Collider, &ColliderAdj)>();
+    let mut tq = sim.world.query::<(&Collider, &ColliderAdj, &ControlAdj)>();
+    let mut tools: Vec<(usize, String, DVec3, Vec<[f64; 6]>)> = tq
+        .iter(&sim.world)
+        .map(|(c, a, u)| (c.index, c.name.clone(), a.translation, u.0.clone()))
+        .collect();
+    tools.sort_by_key(|e| e.0);
     let mut friction: Vec<(usize, String, f64)> = cq
         .iter(&sim.world)
         .map(|(c, a)| (c.index, c.name.clone(), a.friction))
         .collect();
     friction.sort_by_key(|e| e.0);
     for &e in &collider_ents {
-        sim.world.entity_mut(e).remove::<ColliderAdj>();
+        sim.world.entity_mut(e).remove::<(ColliderAdj, ControlAdj)>();
     }
     sim.world.remove_resource::<ColliderInputVelocity>();
     // Leave the world at the final forward state, without adjoint buffers.
@@ -522,7 +564,21 @@ pub fn gradient(
         material: per.iter().map(|e| e.3).collect(),
         gravity,
         friction: friction.into_iter().map(|e| (e.1, e.2)).collect(),
+        tool_start: tools.iter().map(|e| (e.1.clone(), e.2)).collect(),
+        controls: tools.into_iter().map(|e| (e.1, e.3)).collect(),
         checkpoint_every: k,
         tape_bytes: peak_snaps * snap_bytes,
     })
+}
+
+fn shape_name(s: &Shape) -> &'static str {
+    match s {
+        Shape::Plane { .. } => "plane",
+        Shape::Box { .. } => "box",
+        Shape::Sphere { .. } => "sphere",
+        Shape::Capsule { .. } => "capsule",
+        Shape::Cylinder { .. } => "cylinder",
+        Shape::Cup { .. } => "cup",
+        Shape::Spoon { .. } => "spoon",
+    }
 }

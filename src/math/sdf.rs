@@ -4,7 +4,7 @@
 //! gradient is defined. Composite shapes (cup, spoon) combine primitives with `min`/`max`; the
 //! gradient is that of the active branch (a kink where branches tie, documented for the adjoint).
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 use serde::{Deserialize, Serialize};
 
 /// A rigid shape, in SI units, described in its local frame.
@@ -199,6 +199,46 @@ impl Shape {
         }
     }
 
+    /// Hessian `∂²φ/∂p²` at the local point `p` (the derivative of the normal), for the shapes
+    /// whose adjoint w.r.t. a moving pose is implemented; `None` for the others. Piecewise: the
+    /// Hessian of the branch `sdf` takes at `p` (kinks between branches are one-sided).
+    pub fn sdf_hessian(&self, p: DVec3) -> Option<DMat3> {
+        let curv = |proj: DMat3, n: DVec3, dist: f64| {
+            if dist > 0.0 {
+                (proj - DMat3::from_cols(n * n.x, n * n.y, n * n.z)) * (1.0 / dist)
+            } else {
+                DMat3::ZERO
+            }
+        };
+        match *self {
+            Shape::Plane { .. } => Some(DMat3::ZERO),
+            Shape::Box { half_extents } => {
+                let h = DVec3::from(half_extents);
+                let d = p.abs() - h;
+                if d.max_element() <= 0.0 {
+                    return Some(DMat3::ZERO);
+                }
+                let (phi, n) = sd_box(p, h);
+                let act = DVec3::select(d.cmpgt(DVec3::ZERO), DVec3::ONE, DVec3::ZERO);
+                Some(curv(DMat3::from_diagonal(act), n, phi))
+            }
+            Shape::Sphere { radius } => {
+                let (phi, n) = sd_sphere(p, radius);
+                Some(curv(DMat3::IDENTITY, n, phi + radius))
+            }
+            Shape::Capsule { half_length, radius } => {
+                let (phi, n) = sd_capsule_y(p, half_length, radius);
+                let proj = if p.y.abs() < half_length {
+                    DMat3::from_diagonal(DVec3::new(1.0, 0.0, 1.0))
+                } else {
+                    DMat3::IDENTITY
+                };
+                Some(curv(proj, n, phi + radius))
+            }
+            _ => None,
+        }
+    }
+
     /// Radius of a sphere about the local origin that contains the solid (infinite for a plane).
     pub fn bounding_radius(&self) -> f64 {
         match *self {
@@ -328,6 +368,43 @@ mod tests {
                 assert!((g.length() - 1.0).abs() < 1e-12);
             }
             assert!(checked > 1000, "{s:?}: only {checked} smooth samples");
+        }
+    }
+
+    fn max_abs(m: DMat3) -> f64 {
+        m.to_cols_array().iter().fold(0.0, |a, x| a.max(x.abs()))
+    }
+
+    #[test]
+    fn hessian_matches_central_difference_of_the_gradient() {
+        let mut seed = 5;
+        for s in shapes() {
+            let mut checked = 0;
+            for _ in 0..2000 {
+                let p = 0.08 * DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed));
+                let Some(h) = s.sdf_hessian(p) else { break };
+                // Away from branch switches (same test as for the gradient).
+                let smooth = [DVec3::X, DVec3::Y, DVec3::Z].iter().all(|&a| {
+                    (1..=3).all(|k| {
+                        let e = 1e-5 * k as f64;
+                        s.sdf_hessian(p + a * e).is_some_and(|q| max_abs(q - h) < 0.1 * (1.0 + max_abs(h)))
+                            && (s.sdf(p + a * e).1 - s.sdf(p).1).length() < 1e-3
+                    })
+                });
+                if !smooth {
+                    continue;
+                }
+                checked += 1;
+                for (k, a) in [DVec3::X, DVec3::Y, DVec3::Z].iter().enumerate() {
+                    let fd = (s.sdf(p + *a * H).1 - s.sdf(p - *a * H).1) / (2.0 * H);
+                    let col = h.col(k);
+                    let scale = col.abs().max_element().max(fd.abs().max_element()).max(1.0);
+                    assert!((fd - col).abs().max_element() <= 1e-5 * scale, "{s:?} at {p:?}: column {k} {col:?} vs {fd:?}");
+                }
+            }
+            if s.sdf_hessian(DVec3::ZERO).is_some() {
+                assert!(checked > 500, "{s:?}: only {checked}");
+            }
         }
     }
 
