@@ -29,6 +29,8 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--rounds", type=int, default=1, help="alternate the two this many times")
     ap.add_argument("--powderlab", default=None, help="path of the powderlab binary")
+    ap.add_argument("--backward", action="store_true",
+                    help="compare forward+backward (Taichi's ti.ad.Tape, powderlab bench --backward)")
     args = ap.parse_args()
     target = os.environ.get("CARGO_TARGET_DIR", str(ROOT / "target"))
     exe = args.powderlab or str(pathlib.Path(target) / "release" / "powderlab")
@@ -42,6 +44,28 @@ def main():
         scene.write_text(src)
     rows = []
     for r in range(args.rounds):
+        if args.backward:
+            t = subprocess.run([sys.executable, str(REF), "--n-grid", str(args.n_grid), "--steps", "20",
+                                "--threads", str(args.threads), "--arch", "cpu", "--backward", "--fd", "off"],
+                               capture_output=True, text=True, check=True)
+            tj = last_json(t.stdout)
+            p = subprocess.run([exe, "bench", str(scene), "--threads", str(args.threads), "--json", "--backward"],
+                               capture_output=True, text=True, check=True)
+            pj = last_json(p.stdout)
+            row = {"round": r,
+                   "taichi_particle_substeps_per_s": tj["particle_substeps_per_second_forward_plus_backward"],
+                   "powderlab_particle_substeps_per_s": pj["particle_substeps_per_s_forward_backward"],
+                   "taichi_peak_rss_mb": tj["peak_rss_mb"], "powderlab_peak_rss_mb": pj["peak_rss_bytes"] / 2**20,
+                   "taichi_grad_tool_velocity": tj["grad_tool_velocity"],
+                   "powderlab_grad_tool_velocity": pj["grad_tool_velocity"][0]["dloss_dvelocity"],
+                   "taichi_grad_v0_sum": tj["grad_v0"]["sum"], "powderlab_grad_v0_sum": pj["grad_v0_sum"],
+                   "taichi_loss": tj["loss_tape_run"], "powderlab_loss": pj["loss"]}
+            row["ratio"] = row["powderlab_particle_substeps_per_s"] / row["taichi_particle_substeps_per_s"]
+            rows.append(row)
+            print(f"round {r}: backward: taichi {row['taichi_particle_substeps_per_s']/1e6:.3f} M/s, "
+                  f"powderlab {row['powderlab_particle_substeps_per_s']/1e6:.3f} M/s, ratio {row['ratio']:.2f}",
+                  file=sys.stderr)
+            continue
         t = subprocess.run([sys.executable, str(REF), "--n-grid", str(args.n_grid), "--steps", "20",
                             "--threads", str(args.threads), "--arch", "cpu"],
                            capture_output=True, text=True, check=True)

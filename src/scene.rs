@@ -250,6 +250,16 @@ pub enum TargetValue {
     Grams(f64),
 }
 
+/// A loss on the final particle positions (what `gradcheck` and `bench --backward`
+/// differentiate).
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub enum LossSpec {
+    /// `mean_p Σ_d |x_p,d − t_d|` (the Taichi reference benchmark's loss).
+    MeanL1((f64, f64, f64)),
+    /// `Σ_p ‖x_p − t‖` (seed paper eq. 5).
+    SumDistance((f64, f64, f64)),
+}
+
 /// Recording options.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -281,6 +291,10 @@ pub struct Scene {
     pub task: Option<TaskSpec>,
     #[serde(default)]
     pub record: Option<RecordSpec>,
+    /// Default: `SumDistance` to the task's target-cup bottom centre, or to the centre of the
+    /// domain floor.
+    #[serde(default)]
+    pub loss: Option<LossSpec>,
     /// Where the scene came from (for messages).
     #[serde(skip)]
     pub path: PathBuf,

@@ -11,12 +11,22 @@ fn gradcheck_json_on_free_fall() {
         .output()
         .unwrap();
     let out = String::from_utf8_lossy(&o.stdout);
-    assert!(o.status.success(), "{out}\n{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     let rows = v["rows"].as_array().unwrap();
     assert_eq!(rows.len(), 9, "v0 ×3, x0 ×3, E, ν, gravity");
     for r in rows {
-        for key in ["parameter", "adjoint", "finite_difference", "rel_error", "eps"] {
+        for key in [
+            "parameter",
+            "adjoint",
+            "finite_difference",
+            "rel_error",
+            "eps",
+        ] {
             assert!(r.get(key).is_some(), "row lacks {key}: {r}");
         }
     }
@@ -27,7 +37,10 @@ fn gradcheck_json_on_free_fall() {
 #[test]
 fn gradcheck_refuses_a_scene_with_thin_wall_particle_collision() {
     let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/powder_transport.ron");
-    let o = Command::new(env!("CARGO_BIN_EXE_powderlab")).args(["gradcheck", scene, "--steps", "1"]).output().unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(["gradcheck", scene, "--steps", "1"])
+        .output()
+        .unwrap();
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("cannot be differentiated yet"), "{err}");

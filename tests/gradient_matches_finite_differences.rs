@@ -121,8 +121,13 @@ fn a_budget_below_the_smallest_tape_is_refused() {
 #[test]
 fn spoon_and_thin_walls_are_refused_not_silently_wrong() {
     let mut sim = common::build(&common::load("powder_transport.ron"), 1);
-    let err = gradient(&mut sim, 1, &Loss::MeanL1(target()), Tape::Budget(1 << 30)).unwrap_err().to_string();
-    assert!(err.contains("cannot be differentiated yet") && err.contains("spoon"), "{err}");
+    let err = gradient(&mut sim, 1, &Loss::MeanL1(target()), Tape::Budget(1 << 30))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("cannot be differentiated yet") && err.contains("spoon"),
+        "{err}"
+    );
 }
 
 /// A box tool sweeping through the sand (the sand_box motion in miniature): the gradient with
@@ -143,7 +148,9 @@ fn gradient_through_a_moving_tool() {
     let eps = 1e-7;
     let with_v = |k: usize, d: f64| {
         let mut s = scene.clone();
-        if let Some(powderlab::scene::ControlSpec::Constant { linear, .. }) = &mut s.colliders[0].control {
+        if let Some(powderlab::scene::ControlSpec::Constant { linear, .. }) =
+            &mut s.colliders[0].control
+        {
             match k {
                 0 => linear.0 += d,
                 1 => linear.1 += d,
@@ -164,8 +171,16 @@ fn gradient_through_a_moving_tool() {
     };
     for k in 0..3 {
         let ad: f64 = g.controls[0].1.iter().map(|u| u[k] * dt).sum();
-        close((with_v(k, eps) - with_v(k, -eps)) / (2.0 * eps), ad, &format!("dL/d(tool velocity)[{k}]"));
-        close((with_x(k, eps) - with_x(k, -eps)) / (2.0 * eps), g.tool_start[0].1[k], &format!("dL/d(tool start)[{k}]"));
+        close(
+            (with_v(k, eps) - with_v(k, -eps)) / (2.0 * eps),
+            ad,
+            &format!("dL/d(tool velocity)[{k}]"),
+        );
+        close(
+            (with_x(k, eps) - with_x(k, -eps)) / (2.0 * eps),
+            g.tool_start[0].1[k],
+            &format!("dL/d(tool start)[{k}]"),
+        );
     }
 }
 

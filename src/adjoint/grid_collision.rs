@@ -108,7 +108,10 @@ pub fn collider_contact_adjoint(
                 if c.kind == ColliderKind::Tool {
                     acc[ci].linear += a.v_body;
                     let r = DMat3::from_quat(pose.pose.rotation);
-                    let h = c.shape.sdf_hessian(pose.pose.to_local(x)).unwrap_or(DMat3::ZERO);
+                    let h = c
+                        .shape
+                        .sdf_hessian(pose.pose.to_local(x))
+                        .unwrap_or(DMat3::ZERO);
                     acc[ci].translation -= r * h * r.transpose() * a.n;
                 }
             }

@@ -15,10 +15,10 @@
 use crate::adjoint::gravity::GravityAdj;
 use crate::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity, WallInputVelocity};
 use crate::adjoint::tool_move::ControlAdj;
-use crate::math::sdf::Shape;
 use crate::adjoint::{add_adjoint_stage, SubstepAdjoint};
 use crate::components::*;
 use crate::error::AdjointError;
+use crate::math::sdf::Shape;
 use crate::sim::Simulation;
 use crate::systems::{self, new_schedule, Stage};
 use bevy_ecs::prelude::*;
@@ -315,7 +315,11 @@ pub fn gradient(
     }
     {
         let mut q = sim.world.query::<(&Collider, &Control)>();
-        if let Some((c, _)) = q.iter(&sim.world).find(|(_, u)| u.per_step.iter().any(|u| u[3] != 0.0 || u[4] != 0.0 || u[5] != 0.0)) {
+        if let Some((c, _)) = q.iter(&sim.world).find(|(_, u)| {
+            u.per_step
+                .iter()
+                .any(|u| u[3] != 0.0 || u[4] != 0.0 || u[5] != 0.0)
+        }) {
             return Err(AdjointError::NotDifferentiable(format!(
                 "tool '{}' rotates: rotating tools have no adjoint yet (translating tools do)",
                 c.name
@@ -386,7 +390,9 @@ pub fn gradient(
         sim.world.entity_mut(e).insert(ColliderAdj::default());
         let n = sim.world.get::<Control>(e).map(|c| c.per_step.len());
         if let Some(n) = n {
-            sim.world.entity_mut(e).insert(ControlAdj(vec![[0.0; 6]; n]));
+            sim.world
+                .entity_mut(e)
+                .insert(ControlAdj(vec![[0.0; 6]; n]));
         }
     }
     let ents: Vec<(Entity, usize, usize)> = sim
@@ -532,7 +538,9 @@ pub fn gradient(
         .collect();
     friction.sort_by_key(|e| e.0);
     for &e in &collider_ents {
-        sim.world.entity_mut(e).remove::<(ColliderAdj, ControlAdj)>();
+        sim.world
+            .entity_mut(e)
+            .remove::<(ColliderAdj, ControlAdj)>();
     }
     sim.world.remove_resource::<ColliderInputVelocity>();
     // Leave the world at the final forward state, without adjoint buffers.

@@ -12,7 +12,11 @@ use glam::DVec3;
 #[derive(Component, Clone, Debug, Default)]
 pub struct ControlAdj(pub Vec<[f64; 6]>);
 
-pub fn tool_move_adjoint(params: Res<SimParams>, clock: Res<Clock>, mut tools: Query<(&Control, &mut ColliderAdj, &mut ControlAdj)>) {
+pub fn tool_move_adjoint(
+    params: Res<SimParams>,
+    clock: Res<Clock>,
+    mut tools: Query<(&Control, &mut ColliderAdj, &mut ControlAdj)>,
+) {
     for (control, mut a, mut g) in &mut tools {
         if clock.step >= control.per_step.len() {
             // Past the end of the controls the tool holds still: nothing depends on u.

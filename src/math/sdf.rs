@@ -226,7 +226,10 @@ impl Shape {
                 let (phi, n) = sd_sphere(p, radius);
                 Some(curv(DMat3::IDENTITY, n, phi + radius))
             }
-            Shape::Capsule { half_length, radius } => {
+            Shape::Capsule {
+                half_length,
+                radius,
+            } => {
                 let (phi, n) = sd_capsule_y(p, half_length, radius);
                 let proj = if p.y.abs() < half_length {
                     DMat3::from_diagonal(DVec3::new(1.0, 0.0, 1.0))
@@ -387,7 +390,8 @@ mod tests {
                 let smooth = [DVec3::X, DVec3::Y, DVec3::Z].iter().all(|&a| {
                     (1..=3).all(|k| {
                         let e = 1e-5 * k as f64;
-                        s.sdf_hessian(p + a * e).is_some_and(|q| max_abs(q - h) < 0.1 * (1.0 + max_abs(h)))
+                        s.sdf_hessian(p + a * e)
+                            .is_some_and(|q| max_abs(q - h) < 0.1 * (1.0 + max_abs(h)))
                             && (s.sdf(p + a * e).1 - s.sdf(p).1).length() < 1e-3
                     })
                 });
@@ -399,7 +403,10 @@ mod tests {
                     let fd = (s.sdf(p + *a * H).1 - s.sdf(p - *a * H).1) / (2.0 * H);
                     let col = h.col(k);
                     let scale = col.abs().max_element().max(fd.abs().max_element()).max(1.0);
-                    assert!((fd - col).abs().max_element() <= 1e-5 * scale, "{s:?} at {p:?}: column {k} {col:?} vs {fd:?}");
+                    assert!(
+                        (fd - col).abs().max_element() <= 1e-5 * scale,
+                        "{s:?} at {p:?}: column {k} {col:?} vs {fd:?}"
+                    );
                 }
             }
             if s.sdf_hessian(DVec3::ZERO).is_some() {
