@@ -46,3 +46,22 @@ fn free_fall_gradient_is_t_times_identity() {
         g.gravity
     );
 }
+
+/// A non-finite adjoint stops the backward pass naming the step, substep, stage and field.
+#[test]
+fn a_non_finite_adjoint_is_an_error_not_a_gradient() {
+    let mut sim = common::build(&common::load("free_fall.ron"), 1);
+    let n = sim.particle_count();
+    let mut w = vec![DVec3::ZERO; n];
+    w[17] = DVec3::new(f64::NAN, 0.0, 0.0);
+    let err = gradient(&mut sim, 2, &Loss::Linear(vec![w]), Tape::Budget(1 << 30))
+        .unwrap_err()
+        .to_string();
+    println!("{err}");
+    assert!(err.contains("step 1, substep 9"), "{err}");
+    assert!(err.contains("stage 'advect'"), "{err}");
+    assert!(
+        err.contains("'x adjoint'") && err.contains("index 17"),
+        "{err}"
+    );
+}
