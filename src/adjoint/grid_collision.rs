@@ -35,16 +35,16 @@ pub struct ColliderAdj {
 }
 
 /// Nodes per chunk of the collider-gradient reduction (fixed, so the sum order is too).
-const REDUCE_CHUNK: usize = 4096;
+pub(crate) const REDUCE_CHUNK: usize = 4096;
 
 /// Most colliders a node's response sequence is replayed for.
 pub const MAX_COLLIDERS: usize = 4;
 
 #[derive(Clone, Copy, Default)]
-struct NodeAdj {
-    friction: f64,
-    translation: DVec3,
-    linear: DVec3,
+pub(crate) struct NodeAdj {
+    pub(crate) friction: f64,
+    pub(crate) translation: DVec3,
+    pub(crate) linear: DVec3,
 }
 
 /// Collider contact. For a node with `φ(x_i) < band`, `v′ = response(v, v_b, n)` with

@@ -12,9 +12,9 @@
 //! [`SubstepStart`](crate::components::SubstepStart) for the stages whose inputs were
 //! overwritten in place.
 //!
-//! Not yet differentiated, and refused loudly by the backward driver: rotating tools, tool
-//! shapes without an SDF Hessian (cylinder, cup, spoon), particle collision (thin walls) and
-//! Klár hardening. Containers and translating tools with grid contact are differentiated.
+//! Not yet differentiated, and refused loudly by the backward driver: rotating tools, colliders
+//! whose SDF has no Hessian (the spoon) where the Hessian is needed (a moving tool, or particle
+//! contact), and Klár hardening.
 
 pub mod advect;
 pub mod constitutive;
@@ -24,6 +24,7 @@ pub mod gravity;
 pub mod grid_collision;
 pub mod grid_reset;
 pub mod p2g;
+pub mod particle_collision;
 pub mod svd;
 pub mod tape;
 pub mod tool_move;
@@ -96,7 +97,12 @@ pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPl
             }
             schedule.add_systems(tool_move::tool_move_adjoint.in_set(stage));
         }
-        Stage::ParticleCollision => return false,
+        Stage::ParticleCollision => {
+            if !plan.particle_contact {
+                return false;
+            }
+            schedule.add_systems(particle_collision::particle_collision_adjoint.in_set(stage));
+        }
     }
     true
 }

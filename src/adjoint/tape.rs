@@ -14,6 +14,7 @@
 
 use crate::adjoint::gravity::GravityAdj;
 use crate::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity, WallInputVelocity};
+use crate::adjoint::particle_collision::ParticleCollisionInput;
 use crate::adjoint::tool_move::ControlAdj;
 use crate::adjoint::{add_adjoint_stage, SubstepAdjoint};
 use crate::components::*;
@@ -363,15 +364,23 @@ pub fn gradient(
             )));
         }
     }
-    if sim.plan.particle_contact {
-        return Err(AdjointError::NotDifferentiable(
-            "particle collision (colliders with particle_contact: true) has no adjoint yet".into(),
-        ));
+    if let Some(c) = sim
+        .scene
+        .colliders
+        .iter()
+        .find(|c| c.particle_contact && c.shape.sdf_hessian(DVec3::ZERO).is_none())
+    {
+        return Err(AdjointError::NotDifferentiable(format!(
+            "collider '{}': particle collision against a {} needs its SDF Hessian, not implemented yet",
+            c.name,
+            shape_name(&c.shape)
+        )));
     }
-    if sim.scene.colliders.len() > 8 {
-        return Err(AdjointError::NotDifferentiable(
-            "more than 8 colliders".into(),
-        ));
+    if sim.scene.colliders.len() > crate::adjoint::grid_collision::MAX_COLLIDERS {
+        return Err(AdjointError::NotDifferentiable(format!(
+            "more than {} colliders",
+            crate::adjoint::grid_collision::MAX_COLLIDERS
+        )));
     }
     if sim.plan.materials.iter().any(|m| m.hardens()) {
         return Err(AdjointError::NotDifferentiable(
@@ -452,6 +461,7 @@ pub fn gradient(
             },
             P2gAffineAdj(vec![DMat3::ZERO; n]),
             SubstepStart::default(),
+            ParticleCollisionInput::default(),
             MaterialAdj::default(),
         ));
     }
@@ -524,6 +534,14 @@ pub fn gradient(
                     }
                 }
                 for (stage, s) in forward.iter_mut() {
+                    if *stage == Stage::ParticleCollision {
+                        let mut q = sim
+                            .world
+                            .query::<(&Velocity, &mut ParticleCollisionInput)>();
+                        for (v, mut input) in q.iter_mut(&mut sim.world) {
+                            input.0.clone_from(&v.0);
+                        }
+                    }
                     if *stage == Stage::GridCollision {
                         // Save the inputs of the collider and wall responses for their adjoints.
                         let v = sim.world.resource::<Grid>().velocity.clone();
@@ -591,6 +609,7 @@ pub fn gradient(
             SvdFactorsAdj,
             P2gAffineAdj,
             SubstepStart,
+            ParticleCollisionInput,
             MaterialAdj,
         )>();
     }

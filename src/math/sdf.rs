@@ -114,6 +114,32 @@ pub fn sd_cylinder_y(p: DVec3, cy: f64, r: f64, hh: f64) -> (f64, DVec3) {
     }
 }
 
+/// Hessian of [`sd_cylinder_y`]: on the side branch `θ̂θ̂ᵀ/ρ`, on the flat caps 0, and outside
+/// the rim the Hessian of the distance to a circle, `(P − n·nᵀ)/d + (ρ − r)/(d·ρ)·θ̂θ̂ᵀ` with `P`
+/// the projector on the (ρ̂, ŷ) plane.
+pub fn cylinder_hessian(p: DVec3, cy: f64, r: f64, hh: f64) -> DMat3 {
+    let rho = (p.x * p.x + p.z * p.z).sqrt();
+    if rho == 0.0 {
+        return DMat3::ZERO;
+    }
+    let radial = DVec3::new(p.x / rho, 0.0, p.z / rho);
+    let theta = DVec3::new(-radial.z, 0.0, radial.x);
+    let outer = |a: DVec3, b: DVec3| DMat3::from_cols(a * b.x, a * b.y, a * b.z);
+    let y = p.y - cy;
+    let (dx, dy) = (rho - r, y.abs() - hh);
+    if dx > 0.0 && dy > 0.0 {
+        let d = dx.hypot(dy);
+        let axial = DVec3::new(0.0, y.signum(), 0.0);
+        let n = (radial * dx + axial * dy) / d;
+        (outer(radial, radial) + outer(DVec3::Y, DVec3::Y) - outer(n, n)) * (1.0 / d)
+            + outer(theta, theta) * (dx / (d * rho))
+    } else if dx > dy {
+        outer(theta, theta) * (1.0 / rho)
+    } else {
+        DMat3::ZERO
+    }
+}
+
 /// Spherical shell of radius `r`, half thickness `t`, cut by the plane `y = h`, keeping `y < h`.
 /// After Quílez's "cut hollow sphere".
 #[inline]
@@ -238,7 +264,36 @@ impl Shape {
                 };
                 Some(curv(proj, n, phi + radius))
             }
-            _ => None,
+            Shape::Cylinder {
+                radius,
+                half_height,
+            } => Some(cylinder_hessian(p, 0.0, radius, half_height)),
+            Shape::Cup {
+                outer_radius,
+                height,
+                wall_thickness,
+                floor_thickness,
+            } => {
+                let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
+                let top = height + outer_radius;
+                let (cy, r, hh) = (
+                    0.5 * (floor_thickness + top),
+                    outer_radius - wall_thickness,
+                    0.5 * (top - floor_thickness),
+                );
+                let inner = sd_cylinder_y(p, cy, r, hh);
+                if outer.0 >= -inner.0 {
+                    Some(cylinder_hessian(
+                        p,
+                        0.5 * height,
+                        outer_radius,
+                        0.5 * height,
+                    ))
+                } else {
+                    Some(cylinder_hessian(p, cy, r, hh) * -1.0)
+                }
+            }
+            Shape::Spoon { .. } => None,
         }
     }
 

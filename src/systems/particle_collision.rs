@@ -53,6 +53,82 @@ pub fn project_particle(
     v_body + rel_t + n * (v_min - v_body.dot(n))
 }
 
+/// Adjoints of [`project_particle`]'s inputs.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ProjectAdj {
+    pub v: DVec3,
+    pub phi: f64,
+    pub n: DVec3,
+    pub v_body: DVec3,
+    pub mu: f64,
+}
+
+/// Adjoint of [`project_particle`]: `∂L/∂v′` → adjoints of `v`, `φ`, `n`, `v_b`, `μ`. Exact in
+/// each regime; the switches (constraint active or not, `v·n = v_min`; Coulomb stick or slip)
+/// are kinks where the gradient is that of the regime the forward pass took (one-sided).
+#[allow(clippy::too_many_arguments)]
+pub fn project_particle_adj(
+    v: DVec3,
+    phi: f64,
+    n: DVec3,
+    v_body: DVec3,
+    dt: f64,
+    margin: f64,
+    mode: ContactMode,
+    mu: f64,
+    g_out: DVec3,
+) -> ProjectAdj {
+    let v_min = (margin - phi) / dt;
+    let vn = v.dot(n);
+    let mut a = ProjectAdj::default();
+    if vn >= v_min {
+        a.v = g_out;
+        return a;
+    }
+    let rel = v - v_body;
+    let rn = rel.dot(n);
+    let rel_t = rel - rn * n;
+    let dvn = v_min - vn;
+    let t_len = rel_t.length();
+    // out = v_b + rel_t′ + n·(v_min − v_b·n)
+    let vbn = v_body.dot(n);
+    let gn_out = g_out.dot(n);
+    a.v_body += g_out - n * gn_out;
+    a.n += g_out * (v_min - vbn) - v_body * gn_out;
+    let mut g_vmin = gn_out;
+    let mut g_dvn = 0.0;
+    let g_rel_t = match mode {
+        ContactMode::Sticky => DVec3::ZERO,
+        _ if mu > 0.0 && t_len > 0.0 => {
+            let raw = 1.0 - mu * dvn / t_len;
+            if raw > 0.0 {
+                let g_s = g_out.dot(rel_t);
+                a.mu += -g_s * dvn / t_len;
+                g_dvn += -g_s * mu / t_len;
+                let g_len = g_s * mu * dvn / (t_len * t_len);
+                g_out * raw + rel_t * (g_len / t_len)
+            } else {
+                DVec3::ZERO
+            }
+        }
+        _ => g_out,
+    };
+    // dvn = v_min − v·n
+    g_vmin += g_dvn;
+    a.v -= n * g_dvn;
+    a.n -= v * g_dvn;
+    // rel_t = rel − (rel·n)·n
+    let nt = n.dot(g_rel_t);
+    let g_rel = g_rel_t - n * nt;
+    a.n -= g_rel_t * rn + rel * nt;
+    // rel = v − v_b
+    a.v += g_rel;
+    a.v_body -= g_rel;
+    // v_min = (margin − φ)/dt
+    a.phi = -g_vmin / dt;
+    a
+}
+
 pub fn particle_collision(
     params: Res<SimParams>,
     grid: Res<Grid>,
@@ -92,6 +168,87 @@ pub fn particle_collision(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn adjoint_matches_central_differences() {
+        // f64 central differences, away from the regime switches. The outputs are O(1) (v_min is
+        // a clearance over Δt), so the round-off of a difference at ε = 1e-7 is ~1e-9 absolute:
+        // gradients are compared relative to at least FLOOR.
+        const EPS: f64 = 1e-7;
+        const TOL: f64 = 1e-6;
+        const FLOOR: f64 = 1e-2;
+        let mut seed = 3u64;
+        let mut r = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+        };
+        let (dt, margin) = (1e-3, 1e-5);
+        let mut checked = 0;
+        for k in 0..3000 {
+            let v = DVec3::new(r(), r(), r());
+            let n = DVec3::new(r(), r(), r()).normalize();
+            let vb = 0.2 * DVec3::new(r(), r(), r());
+            let phi = 1e-3 * r();
+            let mu = 0.5 * (r() + 1.0);
+            let w = DVec3::new(r(), r(), r());
+            let mode = [
+                ContactMode::Sticky,
+                ContactMode::Slip,
+                ContactMode::Separate,
+            ][k % 3];
+            let v_min = (margin - phi) / dt;
+            let rel = v - vb;
+            let rel_t = rel - rel.dot(n) * n;
+            let raw = 1.0 - mu * (v_min - v.dot(n)) / rel_t.length();
+            if (v.dot(n) - v_min).abs() < 1e-3 || raw.abs() < 1e-3 {
+                continue;
+            }
+            checked += 1;
+            let f = |v: DVec3, phi: f64, n: DVec3, vb: DVec3, mu: f64| {
+                project_particle(v, phi, n, vb, dt, margin, mode, mu).dot(w)
+            };
+            let a = project_particle_adj(v, phi, n, vb, dt, margin, mode, mu, w);
+            let close = |fd: f64, ad: f64, what: &str| {
+                assert!(
+                    (fd - ad).abs() <= TOL * fd.abs().max(ad.abs()).max(FLOOR),
+                    "{mode:?} {what}: fd {fd} ad {ad}"
+                );
+            };
+            for c in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[c] = EPS;
+                close(
+                    (f(v + e, phi, n, vb, mu) - f(v - e, phi, n, vb, mu)) / (2.0 * EPS),
+                    a.v[c],
+                    "v",
+                );
+                close(
+                    (f(v, phi, n + e, vb, mu) - f(v, phi, n - e, vb, mu)) / (2.0 * EPS),
+                    a.n[c],
+                    "n",
+                );
+                close(
+                    (f(v, phi, n, vb + e, mu) - f(v, phi, n, vb - e, mu)) / (2.0 * EPS),
+                    a.v_body[c],
+                    "v_body",
+                );
+            }
+            let h = 1e-9;
+            close(
+                (f(v, phi + h, n, vb, mu) - f(v, phi - h, n, vb, mu)) / (2.0 * h),
+                a.phi,
+                "phi",
+            );
+            close(
+                (f(v, phi, n, vb, mu + EPS) - f(v, phi, n, vb, mu - EPS)) / (2.0 * EPS),
+                a.mu,
+                "mu",
+            );
+        }
+        assert!(checked > 1000, "{checked}");
+    }
 
     #[test]
     fn projection_keeps_the_particle_outside_to_first_order() {

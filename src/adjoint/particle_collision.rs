@@ -1,0 +1,105 @@
+//! Adjoint of stage 10, particle collision (`systems::particle_collision::project_particle`).
+//! Each particle's sequence of projections is replayed from the stored G2P velocity and
+//! reversed with `project_particle_adj`. The SDF value and normal depend on the particle and
+//! collider positions: `φ̄` and `n̄` flow to `x̄` through `∇φ = n` and the Hessian `R·H·Rᵀ`,
+//! and, for a tool, to its translation with the opposite sign; `v̄_b` flows to the tool's
+//! linear velocity. Exact within a regime; the constraint switch `v·n = v_min`, the Coulomb
+//! stick/slip switch and the reach test are one-sided (see `crate::math::contact`).
+
+use crate::adjoint::grid_collision::{ColliderAdj, NodeAdj, MAX_COLLIDERS, REDUCE_CHUNK};
+use crate::components::*;
+use crate::systems::particle_collision::{project_particle, project_particle_adj, MARGIN_CELLS};
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+/// The particle velocities entering the particle-collision stage (G2P's output), saved by the
+/// backward driver.
+#[derive(Component, Clone, Debug, Default)]
+pub struct ParticleCollisionInput(pub Vec<DVec3>);
+
+pub fn particle_collision_adjoint(
+    params: Res<SimParams>,
+    grid: Res<Grid>,
+    mut colliders: Query<(&Collider, &ColliderPose, &mut ColliderAdj)>,
+    mut bodies: Query<(
+        &Position,
+        &ParticleCollisionInput,
+        &mut PositionAdj,
+        &mut VelocityAdj,
+    )>,
+) {
+    let mut cs: Vec<_> = colliders.iter_mut().collect();
+    cs.sort_by_key(|c| c.0.index);
+    let view: Vec<(usize, &Collider, &ColliderPose)> = cs
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.0.particle_contact)
+        .map(|(i, (c, p, _))| (i, *c, *p))
+        .collect();
+    let dt = params.dt_sub;
+    let margin = MARGIN_CELLS * grid.dx;
+    for (x, input, mut gx, mut gv) in &mut bodies {
+        let mut acc = vec![[NodeAdj::default(); MAX_COLLIDERS]; x.0.len()];
+        gv.0.par_iter_mut()
+            .zip(gx.0.par_iter_mut().zip(acc.par_iter_mut()))
+            .enumerate()
+            .for_each(|(i, (g, (gxi, acc)))| {
+                let xp = x.0[i];
+                let mut v = input.0[i];
+                let mut hits =
+                    [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
+                let mut count = 0;
+                for &(ci, c, pose) in &view {
+                    let reach = c.shape.bounding_radius() + margin + dt * v.length();
+                    if (xp - pose.pose.translation).length_squared() > reach * reach {
+                        continue;
+                    }
+                    let (phi, n) = pose.sdf(&c.shape, xp);
+                    if phi - margin > dt * v.length() {
+                        continue;
+                    }
+                    let vb = pose.velocity_at(xp);
+                    hits[count] = (ci, v, phi, n, vb);
+                    v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction);
+                    count += 1;
+                }
+                for &(ci, vin, phi, n, vb) in hits[..count].iter().rev() {
+                    let (c, pose) = (cs[ci].0, cs[ci].1);
+                    let a = project_particle_adj(
+                        vin, phi, n, vb, dt, margin, c.contact, c.friction, *g,
+                    );
+                    *g = a.v;
+                    let r = DMat3::from_quat(pose.pose.rotation);
+                    let h = c
+                        .shape
+                        .sdf_hessian(pose.pose.to_local(xp))
+                        .unwrap_or(DMat3::ZERO);
+                    let g_pos = n * a.phi + r * h * r.transpose() * a.n;
+                    *gxi += g_pos;
+                    acc[ci].friction += a.mu;
+                    if c.kind == ColliderKind::Tool {
+                        acc[ci].translation -= g_pos;
+                        acc[ci].linear += a.v_body;
+                    }
+                }
+            });
+        for (ci, (_, _, ca)) in cs.iter_mut().enumerate() {
+            let partial: Vec<NodeAdj> = acc
+                .par_chunks(REDUCE_CHUNK)
+                .map(|ch| {
+                    ch.iter().fold(NodeAdj::default(), |s, n| NodeAdj {
+                        friction: s.friction + n[ci].friction,
+                        translation: s.translation + n[ci].translation,
+                        linear: s.linear + n[ci].linear,
+                    })
+                })
+                .collect();
+            for p in &partial {
+                ca.friction += p.friction;
+                ca.translation += p.translation;
+                ca.linear += p.linear;
+            }
+        }
+    }
+}
