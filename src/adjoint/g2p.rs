@@ -11,7 +11,7 @@
 //! adjoints of G2P's outputs) and accumulates `x̄` and the grid velocity adjoint.
 
 use crate::components::*;
-use crate::math::kernel::{stencil, weights_1d_deriv};
+use crate::math::kernel::stencil;
 use crate::systems::p2g::SLAB;
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
@@ -42,11 +42,7 @@ pub fn g2p_adjoint(
         gx.0.par_iter_mut().enumerate().for_each(|(i, gx)| {
             let xp = start.x[i];
             let st = stencil((xp - grid.origin) * inv_dx);
-            let dw = [
-                weights_1d_deriv(st.fx.x),
-                weights_1d_deriv(st.fx.y),
-                weights_1d_deriv(st.fx.z),
-            ];
+            let dw = st.derivs();
             let [bi, bj, bk] = st.base;
             let (g_v, g_c) = (gv.0[i], gc.0[i]);
             let mut sx = DVec3::ZERO;
@@ -55,17 +51,9 @@ pub fn g2p_adjoint(
                     let row = grid.index(bi + ia, bj + ib, bk);
                     for ic in 0..3 {
                         let vi = grid.velocity[row + ic];
-                        let w = st.w[0][ia] * st.w[1][ib] * st.w[2][ic];
-                        let grad_w = DVec3::new(
-                            dw[0][ia] * st.w[1][ib] * st.w[2][ic],
-                            st.w[0][ia] * dw[1][ib] * st.w[2][ic],
-                            st.w[0][ia] * st.w[1][ib] * dw[2][ic],
-                        ) * inv_dx;
-                        let d = DVec3::new(
-                            ia as f64 - st.fx.x,
-                            ib as f64 - st.fx.y,
-                            ic as f64 - st.fx.z,
-                        ) * dx;
+                        let w = st.weight(ia, ib, ic);
+                        let grad_w = st.weight_grad(&dw, ia, ib, ic, inv_dx);
+                        let d = st.offset(ia, ib, ic, dx);
                         sx += grad_w * (vi.dot(g_v) + k * vi.dot(g_c * d))
                             - g_c.transpose() * vi * (k * w);
                     }
@@ -91,12 +79,8 @@ pub fn g2p_adjoint(
                     for ib in 0..3 {
                         let row = ((bi + ia - plane0) * n[1] + bj + ib) * n[2] + bk;
                         for ic in 0..3 {
-                            let w = st.w[0][ia] * st.w[1][ib] * st.w[2][ic];
-                            let d = DVec3::new(
-                                ia as f64 - st.fx.x,
-                                ib as f64 - st.fx.y,
-                                ic as f64 - st.fx.z,
-                            ) * dx;
+                            let w = st.weight(ia, ib, ic);
+                            let d = st.offset(ia, ib, ic, dx);
                             out[row + ic] += (g_v + g_c * d * k) * w;
                         }
                     }

@@ -13,6 +13,7 @@
 
 use crate::components::*;
 use crate::math::contact::{contact_response, contact_response_adj};
+use crate::systems::grid_collision::wall_normal;
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -45,6 +46,31 @@ pub(crate) struct NodeAdj {
     pub(crate) friction: f64,
     pub(crate) translation: DVec3,
     pub(crate) linear: DVec3,
+}
+
+/// Sums per-item collider adjoints (one row per grid node or particle) into the colliders'
+/// [`ColliderAdj`], in fixed-size chunks so the sum order does not depend on the thread count.
+pub(crate) fn add_collider_adjoints<'a>(
+    per_item: &[[NodeAdj; MAX_COLLIDERS]],
+    colliders: impl Iterator<Item = &'a mut ColliderAdj>,
+) {
+    for (ci, ca) in colliders.enumerate() {
+        let partial: Vec<NodeAdj> = per_item
+            .par_chunks(REDUCE_CHUNK)
+            .map(|ch| {
+                ch.iter().fold(NodeAdj::default(), |s, n| NodeAdj {
+                    friction: s.friction + n[ci].friction,
+                    translation: s.translation + n[ci].translation,
+                    linear: s.linear + n[ci].linear,
+                })
+            })
+            .collect();
+        for p in &partial {
+            ca.friction += p.friction;
+            ca.translation += p.translation;
+            ca.linear += p.linear;
+        }
+    }
 }
 
 /// Collider contact. For a node with `φ(x_i) < band`, `v′ = response(v, v_b, n)` with
@@ -116,23 +142,7 @@ pub fn collider_contact_adjoint(
                 }
             }
         });
-    for (ci, (_, _, ca)) in cs.iter_mut().enumerate() {
-        let partial: Vec<NodeAdj> = per_node
-            .par_chunks(REDUCE_CHUNK)
-            .map(|ch| {
-                ch.iter().fold(NodeAdj::default(), |s, n| NodeAdj {
-                    friction: s.friction + n[ci].friction,
-                    translation: s.translation + n[ci].translation,
-                    linear: s.linear + n[ci].linear,
-                })
-            })
-            .collect();
-        for p in &partial {
-            ca.friction += p.friction;
-            ca.translation += p.translation;
-            ca.linear += p.linear;
-        }
-    }
+    add_collider_adjoints(&per_node, cs.iter_mut().map(|(_, _, a)| &mut **a));
 }
 
 pub fn domain_walls_adjoint(
@@ -152,15 +162,7 @@ pub fn domain_walls_adjoint(
             let mut vin = [DVec3::ZERO; 3];
             let mut v = input.0[idx];
             let mut count = 0;
-            for a in 0..3 {
-                let mut normal = DVec3::ZERO;
-                if coord[a] < cells {
-                    normal[a] = 1.0;
-                } else if coord[a] + cells >= n[a] {
-                    normal[a] = -1.0;
-                } else {
-                    continue;
-                }
+            for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
                 normals[count] = normal;
                 vin[count] = v;
                 v = contact_response(v, DVec3::ZERO, normal, walls.mode, walls.friction);

@@ -13,7 +13,7 @@
 //! substep-start `x`, `v`; accumulates `v̄`, `Ā`, `x̄`.
 
 use crate::components::*;
-use crate::math::kernel::{stencil, weights_1d_deriv};
+use crate::math::kernel::stencil;
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -57,11 +57,7 @@ pub fn p2g_adjoint(
                 let mv = start.v[i] * m;
                 let a = aff.0[i];
                 let st = stencil((xp - grid.origin) * inv_dx);
-                let dw = [
-                    weights_1d_deriv(st.fx.x),
-                    weights_1d_deriv(st.fx.y),
-                    weights_1d_deriv(st.fx.z),
-                ];
+                let dw = st.derivs();
                 let [bi, bj, bk] = st.base;
                 let (mut sv, mut sa, mut sx) = (DVec3::ZERO, DMat3::ZERO, DVec3::ZERO);
                 for ia in 0..3 {
@@ -74,17 +70,9 @@ pub fn p2g_adjoint(
                             if gp == DVec3::ZERO && gm == 0.0 {
                                 continue;
                             }
-                            let w = st.w[0][ia] * st.w[1][ib] * st.w[2][ic];
-                            let grad_w = DVec3::new(
-                                dw[0][ia] * st.w[1][ib] * st.w[2][ic],
-                                st.w[0][ia] * dw[1][ib] * st.w[2][ic],
-                                st.w[0][ia] * st.w[1][ib] * dw[2][ic],
-                            ) * inv_dx;
-                            let d = DVec3::new(
-                                ia as f64 - st.fx.x,
-                                ib as f64 - st.fx.y,
-                                ic as f64 - st.fx.z,
-                            ) * dx;
+                            let w = st.weight(ia, ib, ic);
+                            let grad_w = st.weight_grad(&dw, ia, ib, ic, inv_dx);
+                            let d = st.offset(ia, ib, ic, dx);
                             sv += gp * (w * m);
                             sa += DMat3::from_cols(gp * (w * d.x), gp * (w * d.y), gp * (w * d.z));
                             sx += grad_w * ((mv + a * d).dot(gp) + m * gm) - a.transpose() * gp * w;

@@ -6,7 +6,7 @@
 //! linear velocity. Exact within a regime; the constraint switch `v·n = v_min`, the Coulomb
 //! stick/slip switch and the reach test are one-sided (see `crate::math::contact`).
 
-use crate::adjoint::grid_collision::{ColliderAdj, NodeAdj, MAX_COLLIDERS, REDUCE_CHUNK};
+use crate::adjoint::grid_collision::{add_collider_adjoints, ColliderAdj, NodeAdj, MAX_COLLIDERS};
 use crate::components::*;
 use crate::systems::particle_collision::{project_particle, project_particle_adj, MARGIN_CELLS};
 use bevy_ecs::prelude::*;
@@ -84,22 +84,6 @@ pub fn particle_collision_adjoint(
                     }
                 }
             });
-        for (ci, (_, _, ca)) in cs.iter_mut().enumerate() {
-            let partial: Vec<NodeAdj> = acc
-                .par_chunks(REDUCE_CHUNK)
-                .map(|ch| {
-                    ch.iter().fold(NodeAdj::default(), |s, n| NodeAdj {
-                        friction: s.friction + n[ci].friction,
-                        translation: s.translation + n[ci].translation,
-                        linear: s.linear + n[ci].linear,
-                    })
-                })
-                .collect();
-            for p in &partial {
-                ca.friction += p.friction;
-                ca.translation += p.translation;
-                ca.linear += p.linear;
-            }
-        }
+        add_collider_adjoints(&acc, cs.iter_mut().map(|(_, _, a)| &mut **a));
     }
 }

@@ -60,6 +60,52 @@ pub fn stencil(grid_x: DVec3) -> Stencil {
     }
 }
 
+impl Stencil {
+    /// Weight of node `(a, b, c)` of the stencil.
+    #[inline(always)]
+    pub fn weight(&self, a: usize, b: usize, c: usize) -> f64 {
+        self.w[0][a] * self.w[1][b] * self.w[2][c]
+    }
+
+    /// `x_i − x_p` for node `(a, b, c)`, in metres.
+    #[inline(always)]
+    pub fn offset(&self, a: usize, b: usize, c: usize, dx: f64) -> DVec3 {
+        DVec3::new(
+            a as f64 - self.fx.x,
+            b as f64 - self.fx.y,
+            c as f64 - self.fx.z,
+        ) * dx
+    }
+
+    /// Per-axis weight derivatives with respect to `fx` (for [`Stencil::weight_grad`]).
+    #[inline(always)]
+    pub fn derivs(&self) -> [[f64; 3]; 3] {
+        [
+            weights_1d_deriv(self.fx.x),
+            weights_1d_deriv(self.fx.y),
+            weights_1d_deriv(self.fx.z),
+        ]
+    }
+
+    /// `∂w/∂x_p` of node `(a, b, c)`, given [`Stencil::derivs`].
+    #[inline(always)]
+    pub fn weight_grad(
+        &self,
+        dw: &[[f64; 3]; 3],
+        a: usize,
+        b: usize,
+        c: usize,
+        inv_dx: f64,
+    ) -> DVec3 {
+        let w = &self.w;
+        DVec3::new(
+            dw[0][a] * w[1][b] * w[2][c],
+            w[0][a] * dw[1][b] * w[2][c],
+            w[0][a] * w[1][b] * dw[2][c],
+        ) * inv_dx
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -48,21 +48,27 @@ pub fn collider_contact(
         });
 }
 
+/// The inward wall normal along axis `a` of the node at `coord`, if it lies in a wall layer.
+#[inline(always)]
+pub fn wall_normal(coord: [usize; 3], n: [usize; 3], cells: usize, a: usize) -> Option<DVec3> {
+    let mut normal = DVec3::ZERO;
+    if coord[a] < cells {
+        normal[a] = 1.0;
+    } else if coord[a] + cells >= n[a] {
+        normal[a] = -1.0;
+    } else {
+        return None;
+    }
+    Some(normal)
+}
+
 pub fn domain_walls(walls: Res<DomainWalls>, mut grid: ResMut<Grid>) {
     let g = &mut *grid;
     let n = g.n;
     let cells = walls.cells;
     g.velocity.par_iter_mut().enumerate().for_each(|(idx, v)| {
         let coord = [idx / (n[1] * n[2]), (idx / n[2]) % n[1], idx % n[2]];
-        for a in 0..3 {
-            let mut normal = DVec3::ZERO;
-            if coord[a] < cells {
-                normal[a] = 1.0;
-            } else if coord[a] + cells >= n[a] {
-                normal[a] = -1.0;
-            } else {
-                continue;
-            }
+        for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
             *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
         }
     });
