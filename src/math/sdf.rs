@@ -114,6 +114,25 @@ pub fn sd_cylinder_y(p: DVec3, cy: f64, r: f64, hh: f64) -> (f64, DVec3) {
     }
 }
 
+/// Hessian of the distance from `p` to the horizontal circle of radius `r` at height `y0` (about
+/// the y axis): `(P − n·nᵀ)/d + (ρ − r)/(d·ρ)·θ̂θ̂ᵀ`, `P` the projector on the (ρ̂, ŷ) plane.
+pub fn circle_distance_hessian(p: DVec3, r: f64, y0: f64) -> DMat3 {
+    let rho = (p.x * p.x + p.z * p.z).sqrt();
+    if rho == 0.0 {
+        return DMat3::ZERO;
+    }
+    let radial = DVec3::new(p.x / rho, 0.0, p.z / rho);
+    let theta = DVec3::new(-radial.z, 0.0, radial.x);
+    let outer = |a: DVec3, b: DVec3| DMat3::from_cols(a * b.x, a * b.y, a * b.z);
+    let (dx, dy) = (rho - r, p.y - y0);
+    let d = dx.hypot(dy);
+    if d == 0.0 {
+        return DMat3::ZERO;
+    }
+    let n = (radial * dx + DVec3::Y * dy) / d;
+    (outer(radial, radial) + outer(DVec3::Y, DVec3::Y) - outer(n, n)) * (1.0 / d) + outer(theta, theta) * (dx / (d * rho))
+}
+
 /// Hessian of [`sd_cylinder_y`]: on the side branch `θ̂θ̂ᵀ/ρ`, on the flat caps 0, and outside
 /// the rim the Hessian of the distance to a circle, `(P − n·nᵀ)/d + (ρ − r)/(d·ρ)·θ̂θ̂ᵀ` with `P`
 /// the projector on the (ρ̂, ŷ) plane.
@@ -293,7 +312,42 @@ impl Shape {
                     Some(cylinder_hessian(p, cy, r, hh) * -1.0)
                 }
             }
-            Shape::Spoon { .. } => None,
+            Shape::Spoon {
+                bowl_radius,
+                bowl_depth,
+                thickness,
+                handle_length,
+                handle_radius,
+                handle_rise,
+            } => {
+                let h = bowl_depth - bowl_radius;
+                let bowl = sd_cut_hollow_sphere(p, bowl_radius, h, 0.5 * thickness);
+                let w = (bowl_radius * bowl_radius - h * h).max(0.0).sqrt();
+                let a = DVec3::new(w, h, 0.0);
+                let b = a + DVec3::new(handle_length, handle_rise, 0.0);
+                let handle = sd_capsule(p, a, b, handle_radius);
+                if bowl.0 <= handle.0 {
+                    let rho = (p.x * p.x + p.z * p.z).sqrt();
+                    if h * rho < w * p.y {
+                        Some(circle_distance_hessian(p, w, h))
+                    } else {
+                        let l = p.length();
+                        let s = if l < bowl_radius { -1.0 } else { 1.0 };
+                        Some(curv(DMat3::IDENTITY, p / l, l) * s)
+                    }
+                } else {
+                    let ab = b - a;
+                    let t = (p - a).dot(ab) / ab.length_squared();
+                    let c = a + t.clamp(0.0, 1.0) * ab;
+                    let proj = if t > 0.0 && t < 1.0 {
+                        let e = ab.normalize();
+                        DMat3::IDENTITY - DMat3::from_cols(e * e.x, e * e.y, e * e.z)
+                    } else {
+                        DMat3::IDENTITY
+                    };
+                    Some(curv(proj, handle.1, (p - c).length()))
+                }
+            }
         }
     }
 
