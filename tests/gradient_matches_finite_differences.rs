@@ -265,3 +265,41 @@ fn gradient_through_thin_wall_particle_collision() {
         "dL/dmu(cup)",
     );
 }
+
+/// A box paddle translating and spinning through the sand: gradients with respect to its
+/// linear and angular velocity (the rotation-vector exponential and its left Jacobian).
+#[test]
+fn gradient_through_a_rotating_tool() {
+    let src = SRC.replace(
+        "velocity: (0.2, 0.0, 0.0))],",
+        "velocity: (0.0, 0.0, 0.0))],\n    colliders: [(name: \"paddle\", kind: Tool, shape: Box(half_extents: (0.01, 0.015, 0.02)),\n                 position: (0.0313579, 0.0617531, 0.0552468), friction: 0.2, particle_contact: false,\n                 control: Constant(linear: (0.6, 0.05, 0.1), angular: (0.3, 1.2, -0.8), steps: 8))],",
+    );
+    let scene = common::parse(&src).unwrap();
+    let g = run(&scene, 2, Tape::Budget(1 << 30));
+    let dt = scene.simulation.dt;
+    let eps = 1e-7;
+    let edit = |k: usize, d: f64| {
+        let mut s = scene.clone();
+        if let Some(powderlab::scene::ControlSpec::Constant {
+            linear, angular, ..
+        }) = &mut s.colliders[0].control
+        {
+            let v = if k < 3 { linear } else { angular };
+            match k % 3 {
+                0 => v.0 += d,
+                1 => v.1 += d,
+                _ => v.2 += d,
+            }
+        }
+        loss(&s)
+    };
+    for k in 0..6 {
+        let ad: f64 = g.controls[0].1.iter().map(|u| u[k] * dt).sum();
+        let what = if k < 3 {
+            format!("dL/d(linear)[{k}]")
+        } else {
+            format!("dL/d(angular)[{}]", k - 3)
+        };
+        close((edit(k, eps) - edit(k, -eps)) / (2.0 * eps), ad, &what);
+    }
+}

@@ -27,12 +27,15 @@ pub struct WallInputVelocity(pub Vec<DVec3>);
 pub struct ColliderInputVelocity(pub Vec<DVec3>);
 
 /// Adjoints of a collider's parameters and motion: `∂L/∂μ`, and for a tool `∂L/∂t` (its
-/// current translation) and `∂L/∂v_lin` (its linear velocity over the current substep).
+/// current translation), `∂L/∂θ` (its current rotation, as a world-frame rotation-vector
+/// perturbation `δR = [δθ]×·R`), and `∂L/∂v_lin`, `∂L/∂ω` (its velocities over the substep).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct ColliderAdj {
     pub friction: f64,
     pub translation: DVec3,
+    pub rotation: DVec3,
     pub linear: DVec3,
+    pub angular: DVec3,
 }
 
 /// Nodes per chunk of the collider-gradient reduction (fixed, so the sum order is too).
@@ -45,7 +48,52 @@ pub const MAX_COLLIDERS: usize = 4;
 pub(crate) struct NodeAdj {
     pub(crate) friction: f64,
     pub(crate) translation: DVec3,
+    pub(crate) rotation: DVec3,
     pub(crate) linear: DVec3,
+    pub(crate) angular: DVec3,
+}
+
+impl NodeAdj {
+    /// Adds the adjoints of a tool's pose and velocity from one contact: `n̄` of the normal
+    /// `n = R·∇φ_l(Rᵀ(x − t))`, `φ̄` of the distance and `v̄_b` of `v_b = v_lin + ω × (x − t)`.
+    /// Returns `∂L/∂x` of the contact point.
+    ///
+    /// ```text
+    /// x̄ = φ̄·n + R·H·Rᵀ·n̄ + v̄_b × ω,   t̄ −= x̄
+    /// θ̄ += φ̄·(n × r) + n × n̄ + (R·H·Rᵀ·n̄) × r,   v̄_lin += v̄_b,   ω̄ += r × v̄_b
+    /// ```
+    pub(crate) fn add_tool_contact(
+        &mut self,
+        pose: &ColliderPose,
+        h_world: DMat3,
+        x: DVec3,
+        n: DVec3,
+        g_phi: f64,
+        g_n: DVec3,
+        g_vb: DVec3,
+    ) -> DVec3 {
+        let r = x - pose.pose.translation;
+        let hn = h_world * g_n;
+        let g_x = n * g_phi + hn + g_vb.cross(pose.angular);
+        self.translation -= g_x;
+        self.rotation += n.cross(r) * g_phi + n.cross(g_n) + hn.cross(r);
+        self.linear += g_vb;
+        self.angular += r.cross(g_vb);
+        g_x
+    }
+}
+
+/// `R·H·Rᵀ`: the world-frame Hessian of a collider's SDF at `x`.
+pub(crate) fn world_hessian(
+    shape: &crate::math::sdf::Shape,
+    pose: &ColliderPose,
+    x: DVec3,
+) -> DMat3 {
+    let r = DMat3::from_quat(pose.pose.rotation);
+    r * shape
+        .sdf_hessian(pose.pose.to_local(x))
+        .unwrap_or(DMat3::ZERO)
+        * r.transpose()
 }
 
 /// Sums per-item collider adjoints (one row per grid node or particle) into the colliders'
@@ -61,25 +109,26 @@ pub(crate) fn add_collider_adjoints<'a>(
                 ch.iter().fold(NodeAdj::default(), |s, n| NodeAdj {
                     friction: s.friction + n[ci].friction,
                     translation: s.translation + n[ci].translation,
+                    rotation: s.rotation + n[ci].rotation,
                     linear: s.linear + n[ci].linear,
+                    angular: s.angular + n[ci].angular,
                 })
             })
             .collect();
         for p in &partial {
             ca.friction += p.friction;
             ca.translation += p.translation;
+            ca.rotation += p.rotation;
             ca.linear += p.linear;
+            ca.angular += p.angular;
         }
     }
 }
 
 /// Collider contact. For a node with `φ(x_i) < band`, `v′ = response(v, v_b, n)` with
-/// `v_b = v_lin` (tools translate; rotating tools are refused by the backward driver) and
-/// `n = R·∇φ_local(Rᵀ(x_i − t))`, so besides `v̄` and `μ̄`:
-///
-/// ```text
-/// v̄_lin += v̄_b,    t̄ −= R·H·Rᵀ·n̄      (H: Hessian of the local SDF)
-/// ```
+/// `v_b = v_lin + ω × (x_i − t)` and `n = R·∇φ_local(Rᵀ(x_i − t))`; besides `v̄` and `μ̄` the
+/// tool's pose and velocity adjoints follow [`NodeAdj::add_tool_contact`] (H: the Hessian of
+/// the local SDF).
 ///
 /// Exact within a contact regime; the band edge `φ = band` and the separate/approach switch are
 /// one-sided. The band test itself moves with the tool: a node entering or leaving the band is
@@ -132,13 +181,16 @@ pub fn collider_contact_adjoint(
                 *g = a.v;
                 acc[ci].friction += a.mu;
                 if c.kind == ColliderKind::Tool {
-                    acc[ci].linear += a.v_body;
-                    let r = DMat3::from_quat(pose.pose.rotation);
-                    let h = c
-                        .shape
-                        .sdf_hessian(pose.pose.to_local(x))
-                        .unwrap_or(DMat3::ZERO);
-                    acc[ci].translation -= r * h * r.transpose() * a.n;
+                    // Grid nodes do not move: the returned x̄ has nowhere to go.
+                    acc[ci].add_tool_contact(
+                        pose,
+                        world_hessian(&c.shape, pose, x),
+                        x,
+                        normal,
+                        0.0,
+                        a.n,
+                        a.v_body,
+                    );
                 }
             }
         });

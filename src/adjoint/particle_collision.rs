@@ -1,16 +1,17 @@
 //! Adjoint of stage 10, particle collision (`systems::particle_collision::project_particle`).
 //! Each particle's sequence of projections is replayed from the stored G2P velocity and
 //! reversed with `project_particle_adj`. The SDF value and normal depend on the particle and
-//! collider positions: `φ̄` and `n̄` flow to `x̄` through `∇φ = n` and the Hessian `R·H·Rᵀ`,
-//! and, for a tool, to its translation with the opposite sign; `v̄_b` flows to the tool's
-//! linear velocity. Exact within a regime; the constraint switch `v·n = v_min`, the Coulomb
+//! collider poses: `φ̄` and `n̄` flow to `x̄` through `∇φ = n` and the Hessian `R·H·Rᵀ`, and,
+//! for a tool, to its translation, rotation and velocities (`NodeAdj::add_tool_contact`). Exact within a regime; the constraint switch `v·n = v_min`, the Coulomb
 //! stick/slip switch and the reach test are one-sided (see `crate::math::contact`).
 
-use crate::adjoint::grid_collision::{add_collider_adjoints, ColliderAdj, NodeAdj, MAX_COLLIDERS};
+use crate::adjoint::grid_collision::{
+    add_collider_adjoints, world_hessian, ColliderAdj, NodeAdj, MAX_COLLIDERS,
+};
 use crate::components::*;
 use crate::systems::particle_collision::{project_particle, project_particle_adj, MARGIN_CELLS};
 use bevy_ecs::prelude::*;
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 use rayon::prelude::*;
 
 /// The particle velocities entering the particle-collision stage (G2P's output), saved by the
@@ -70,17 +71,12 @@ pub fn particle_collision_adjoint(
                         vin, phi, n, vb, dt, margin, c.contact, c.friction, *g,
                     );
                     *g = a.v;
-                    let r = DMat3::from_quat(pose.pose.rotation);
-                    let h = c
-                        .shape
-                        .sdf_hessian(pose.pose.to_local(xp))
-                        .unwrap_or(DMat3::ZERO);
-                    let g_pos = n * a.phi + r * h * r.transpose() * a.n;
-                    *gxi += g_pos;
+                    let h = world_hessian(&c.shape, pose, xp);
                     acc[ci].friction += a.mu;
                     if c.kind == ColliderKind::Tool {
-                        acc[ci].translation -= g_pos;
-                        acc[ci].linear += a.v_body;
+                        *gxi += acc[ci].add_tool_contact(pose, h, xp, n, a.phi, a.n, a.v_body);
+                    } else {
+                        *gxi += n * a.phi + h * a.n;
                     }
                 }
             });

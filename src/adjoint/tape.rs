@@ -191,6 +191,8 @@ pub struct Gradients {
     pub friction: Vec<(String, f64)>,
     /// `∂L/∂t(0)`: the gradient with respect to each tool's start position.
     pub tool_start: Vec<(String, DVec3)>,
+    /// `∂L/∂θ(0)`: with respect to each tool's start orientation (world-frame rotation vector).
+    pub tool_start_rotation: Vec<(String, DVec3)>,
     /// `∂L/∂u` per global step of each tool's control sequence (translation, rotation vector).
     pub controls: Vec<(String, Vec<[f64; 6]>)>,
     /// Checkpoint interval used, in global steps.
@@ -348,19 +350,6 @@ pub fn gradient(
                 "tool '{}': the contact adjoint of a moving {} needs its SDF Hessian, not implemented yet (box, sphere, capsule and plane tools are differentiable)",
                 c.name,
                 shape_name(&c.shape)
-            )));
-        }
-    }
-    {
-        let mut q = sim.world.query::<(&Collider, &Control)>();
-        if let Some((c, _)) = q.iter(&sim.world).find(|(_, u)| {
-            u.per_step
-                .iter()
-                .any(|u| u[3] != 0.0 || u[4] != 0.0 || u[5] != 0.0)
-        }) {
-            return Err(AdjointError::NotDifferentiable(format!(
-                "tool '{}' rotates: rotating tools have no adjoint yet (translating tools do)",
-                c.name
             )));
         }
     }
@@ -582,9 +571,17 @@ pub fn gradient(
     let gravity = sim.world.resource::<GravityAdj>().0;
     let mut cq = sim.world.query::<(&Collider, &ColliderAdj)>();
     let mut tq = sim.world.query::<(&Collider, &ColliderAdj, &ControlAdj)>();
-    let mut tools: Vec<(usize, String, DVec3, Vec<[f64; 6]>)> = tq
+    let mut tools: Vec<(usize, String, DVec3, Vec<[f64; 6]>, DVec3)> = tq
         .iter(&sim.world)
-        .map(|(c, a, u)| (c.index, c.name.clone(), a.translation, u.0.clone()))
+        .map(|(c, a, u)| {
+            (
+                c.index,
+                c.name.clone(),
+                a.translation,
+                u.0.clone(),
+                a.rotation,
+            )
+        })
         .collect();
     tools.sort_by_key(|e| e.0);
     let mut friction: Vec<(usize, String, f64)> = cq
@@ -629,6 +626,7 @@ pub fn gradient(
         gravity,
         friction: friction.into_iter().map(|e| (e.1, e.2)).collect(),
         tool_start: tools.iter().map(|e| (e.1.clone(), e.2)).collect(),
+        tool_start_rotation: tools.iter().map(|e| (e.1.clone(), e.4)).collect(),
         controls: tools.into_iter().map(|e| (e.1, e.3)).collect(),
         checkpoint_every: k,
         tape_bytes: peak_snaps * snap_bytes,

@@ -130,7 +130,8 @@ pub fn circle_distance_hessian(p: DVec3, r: f64, y0: f64) -> DMat3 {
         return DMat3::ZERO;
     }
     let n = (radial * dx + DVec3::Y * dy) / d;
-    (outer(radial, radial) + outer(DVec3::Y, DVec3::Y) - outer(n, n)) * (1.0 / d) + outer(theta, theta) * (dx / (d * rho))
+    (outer(radial, radial) + outer(DVec3::Y, DVec3::Y) - outer(n, n)) * (1.0 / d)
+        + outer(theta, theta) * (dx / (d * rho))
 }
 
 /// Hessian of [`sd_cylinder_y`]: on the side branch `θ̂θ̂ᵀ/ρ`, on the flat caps 0, and outside
