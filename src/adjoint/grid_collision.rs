@@ -68,9 +68,7 @@ impl NodeAdj {
         h_world: DMat3,
         x: DVec3,
         n: DVec3,
-        g_phi: f64,
-        g_n: DVec3,
-        g_vb: DVec3,
+        (g_phi, g_n, g_vb): (f64, DVec3, DVec3),
     ) -> DVec3 {
         let r = x - pose.pose.translation;
         let hn = h_world * g_n;
@@ -187,9 +185,7 @@ pub fn collider_contact_adjoint(
                         world_hessian(&c.shape, pose, x),
                         x,
                         normal,
-                        0.0,
-                        a.n,
-                        a.v_body,
+                        (0.0, a.n, a.v_body),
                     );
                 }
             }

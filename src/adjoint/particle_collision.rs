@@ -74,7 +74,7 @@ pub fn particle_collision_adjoint(
                     let h = world_hessian(&c.shape, pose, xp);
                     acc[ci].friction += a.mu;
                     if c.kind == ColliderKind::Tool {
-                        *gxi += acc[ci].add_tool_contact(pose, h, xp, n, a.phi, a.n, a.v_body);
+                        *gxi += acc[ci].add_tool_contact(pose, h, xp, n, (a.phi, a.n, a.v_body));
                     } else {
                         *gxi += n * a.phi + h * a.n;
                     }

@@ -175,6 +175,9 @@ impl Loss {
     }
 }
 
+/// (scene index, name, ∂L/∂t(0), ∂L/∂u per step, ∂L/∂θ(0)) of one tool.
+type ToolGrad = (usize, String, DVec3, Vec<[f64; 6]>, DVec3);
+
 /// Gradients of a loss on the final state.
 #[derive(Clone, Debug)]
 pub struct Gradients {
@@ -571,7 +574,7 @@ pub fn gradient(
     let gravity = sim.world.resource::<GravityAdj>().0;
     let mut cq = sim.world.query::<(&Collider, &ColliderAdj)>();
     let mut tq = sim.world.query::<(&Collider, &ColliderAdj, &ControlAdj)>();
-    let mut tools: Vec<(usize, String, DVec3, Vec<[f64; 6]>, DVec3)> = tq
+    let mut tools: Vec<ToolGrad> = tq
         .iter(&sim.world)
         .map(|(c, a, u)| {
             (
