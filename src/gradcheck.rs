@@ -111,7 +111,9 @@ fn shift_state(sim: &mut Simulation, dv: DVec3, dx: DVec3) {
 }
 
 /// Parameter groups `gradcheck` knows.
-pub const GROUPS: [&str; 6] = ["v0", "x0", "material", "friction", "gravity", "tool"];
+pub const GROUPS: [&str; 7] = [
+    "v0", "x0", "material", "friction", "gravity", "tool", "skill",
+];
 
 /// Runs the comparison for the chosen parameter groups.
 pub fn run(
@@ -297,6 +299,40 @@ pub fn run(
                         eps,
                     );
                 }
+            }
+        }
+    }
+    if has("skill") {
+        // Θ of skill-driven tools; ε is small enough that no phase's step count changes (a
+        // change would be a jump the straight-through gradient does not see).
+        let eps = 1e-7;
+        for (name, gt) in &g.skills {
+            let i = scene
+                .colliders
+                .iter()
+                .position(|c| &c.name == name)
+                .expect("a tool of the scene");
+            for (k, label) in ["depth", "scoop_angle", "lift", "transport", "pour"]
+                .iter()
+                .enumerate()
+            {
+                let edit = |d: f64| {
+                    let mut s = scene.clone();
+                    if let Some(crate::scene::ControlSpec::Skill(sk)) = &mut s.colliders[i].control
+                    {
+                        sk.theta[k] += d;
+                    }
+                    s
+                };
+                let p = forward_loss(&edit(eps), steps, threads, DVec3::ZERO, DVec3::ZERO, &loss)?;
+                let m = forward_loss(&edit(-eps), steps, threads, DVec3::ZERO, DVec3::ZERO, &loss)?;
+                push(
+                    format!("colliders.{name}.theta[{k}] ({label})"),
+                    gt[k],
+                    p,
+                    m,
+                    eps,
+                );
             }
         }
     }

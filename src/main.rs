@@ -64,7 +64,7 @@ enum Command {
     /// Compare adjoint gradients with central differences (f64), per parameter.
     Gradcheck {
         scene: PathBuf,
-        /// Parameter groups: v0, x0, material, friction, gravity, tool (comma separated).
+        /// Parameter groups: v0, x0, material, friction, gravity, tool, skill (comma separated).
         #[arg(
             long,
             value_delimiter = ',',

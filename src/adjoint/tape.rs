@@ -196,6 +196,8 @@ pub struct Gradients {
     pub tool_start: Vec<(String, DVec3)>,
     /// `∂L/∂θ(0)`: with respect to each tool's start orientation (world-frame rotation vector).
     pub tool_start_rotation: Vec<(String, DVec3)>,
+    /// `∂L/∂Θ` of each tool driven by a skill (straight-through rounding of the step counts).
+    pub skills: Vec<(String, [f64; 5])>,
     /// `∂L/∂u` per global step of each tool's control sequence (translation, rotation vector).
     pub controls: Vec<(String, Vec<[f64; 6]>)>,
     /// Checkpoint interval used, in global steps.
@@ -630,6 +632,7 @@ pub fn gradient(
         friction: friction.into_iter().map(|e| (e.1, e.2)).collect(),
         tool_start: tools.iter().map(|e| (e.1.clone(), e.2)).collect(),
         tool_start_rotation: tools.iter().map(|e| (e.1.clone(), e.4)).collect(),
+        skills: skill_gradients(&sim.scene, &tools),
         controls: tools.into_iter().map(|e| (e.1, e.3)).collect(),
         checkpoint_every: k,
         tape_bytes: peak_snaps * snap_bytes,
@@ -646,4 +649,26 @@ fn shape_name(s: &Shape) -> &'static str {
         Shape::Cup { .. } => "cup",
         Shape::Spoon { .. } => "spoon",
     }
+}
+
+/// `∂L/∂Θ` for the tools whose controls come from a skill.
+fn skill_gradients(scene: &crate::scene::Scene, tools: &[ToolGrad]) -> Vec<(String, [f64; 5])> {
+    tools
+        .iter()
+        .filter_map(|(_, name, _, g_u, _)| {
+            let c = scene.colliders.iter().find(|c| &c.name == name)?;
+            let Some(crate::scene::ControlSpec::Skill(sk)) = &c.control else {
+                return None;
+            };
+            let pose = crate::math::pose::Pose {
+                translation: DVec3::from(c.position),
+                rotation: crate::scene::Scene::collider_rotation(c),
+            };
+            let bottom = pose.to_world(crate::sim::lowest_local_point(&c.shape)).y;
+            Some((
+                name.clone(),
+                sk.controls_adj(scene.simulation.dt, bottom, g_u),
+            ))
+        })
+        .collect()
 }
