@@ -1,0 +1,51 @@
+//! Long horizon: on the full `powder_transport` horizon, the gradient is finite and its norm
+//! neither explodes nor vanishes as the horizon grows (a third, two thirds, all of it).
+//!
+//! Slow (about a quarter of an hour on 2 cores), so it is ignored by default:
+//! `cargo test --release --test long_horizon_gradient -- --ignored --nocapture`
+
+use glam::DVec3;
+use powderlab::adjoint::tape::{gradient, Tape};
+use powderlab::gradcheck::scene_loss;
+
+mod common;
+
+/// Growth allowed between horizons one third apart: a gradient that changes by more than three
+/// orders of magnitude over a third of the task has exploded or vanished.
+const MAX_GROWTH: f64 = 1e3;
+
+#[test]
+#[ignore = "slow study: about 15 minutes on 2 cores"]
+fn gradient_stays_finite_and_bounded_over_the_horizon() {
+    let scene = common::load("powder_transport.ron");
+    let horizon = common::build(&scene, 2).horizon;
+    let loss = scene_loss(&scene);
+    let mut norms = Vec::new();
+    for steps in [horizon / 3, 2 * horizon / 3, horizon] {
+        let mut sim = common::build(&scene, 2);
+        let t = std::time::Instant::now();
+        let g = gradient(&mut sim, steps, &loss, Tape::Budget(1 << 30)).unwrap_or_else(|e| panic!("{steps} steps: {e}"));
+        let v0: f64 = g.v0.iter().flatten().map(|v| v.length_squared()).sum::<f64>().sqrt();
+        let theta = g.skills[0].1;
+        let th: f64 = theta.iter().map(|x| x * x).sum::<f64>().sqrt();
+        let ctrl: f64 = g.controls[0].1.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+        println!(
+            "{steps} steps: loss {:.6e}, |dL/dv0| {v0:.4e}, |dL/dTheta| {th:.4e} {theta:?}, |dL/du| {ctrl:.4e}, |dL/dE| {:.4e}, tape {:.1} MB (k = {}), peak RSS {:.1} MB, {:.1} s",
+            g.loss,
+            g.material[0].youngs_modulus.abs(),
+            g.tape_bytes as f64 / 1e6,
+            g.checkpoint_every,
+            powderlab::util::peak_rss_bytes() as f64 / 1e6,
+            t.elapsed().as_secs_f64()
+        );
+        assert!(v0.is_finite() && th.is_finite() && ctrl.is_finite());
+        assert!(g.x0.iter().flatten().all(|x: &DVec3| x.is_finite()));
+        norms.push((v0, ctrl));
+    }
+    for w in norms.windows(2) {
+        for (a, b) in [(w[0].0, w[1].0), (w[0].1, w[1].1)] {
+            assert!(a > 0.0 && b > 0.0, "a vanished gradient: {norms:?}");
+            assert!(b / a < MAX_GROWTH && a / b < MAX_GROWTH, "exploding or vanishing: {norms:?}");
+        }
+    }
+}
