@@ -24,11 +24,23 @@ fn gradient_stays_finite_and_bounded_over_the_horizon() {
     for steps in [horizon / 3, 2 * horizon / 3, horizon] {
         let mut sim = common::build(&scene, 2);
         let t = std::time::Instant::now();
-        let g = gradient(&mut sim, steps, &loss, Tape::Budget(1 << 30)).unwrap_or_else(|e| panic!("{steps} steps: {e}"));
-        let v0: f64 = g.v0.iter().flatten().map(|v| v.length_squared()).sum::<f64>().sqrt();
+        let g = gradient(&mut sim, steps, &loss, Tape::Budget(1 << 30))
+            .unwrap_or_else(|e| panic!("{steps} steps: {e}"));
+        let v0: f64 =
+            g.v0.iter()
+                .flatten()
+                .map(|v| v.length_squared())
+                .sum::<f64>()
+                .sqrt();
         let theta = g.skills[0].1;
         let th: f64 = theta.iter().map(|x| x * x).sum::<f64>().sqrt();
-        let ctrl: f64 = g.controls[0].1.iter().flatten().map(|x| x * x).sum::<f64>().sqrt();
+        let ctrl: f64 = g.controls[0]
+            .1
+            .iter()
+            .flatten()
+            .map(|x| x * x)
+            .sum::<f64>()
+            .sqrt();
         println!(
             "{steps} steps: loss {:.6e}, |dL/dv0| {v0:.4e}, |dL/dTheta| {th:.4e} {theta:?}, |dL/du| {ctrl:.4e}, |dL/dE| {:.4e}, tape {:.1} MB (k = {}), peak RSS {:.1} MB, {:.1} s",
             g.loss,
@@ -45,7 +57,10 @@ fn gradient_stays_finite_and_bounded_over_the_horizon() {
     for w in norms.windows(2) {
         for (a, b) in [(w[0].0, w[1].0), (w[0].1, w[1].1)] {
             assert!(a > 0.0 && b > 0.0, "a vanished gradient: {norms:?}");
-            assert!(b / a < MAX_GROWTH && a / b < MAX_GROWTH, "exploding or vanishing: {norms:?}");
+            assert!(
+                b / a < MAX_GROWTH && a / b < MAX_GROWTH,
+                "exploding or vanishing: {norms:?}"
+            );
         }
     }
 }
