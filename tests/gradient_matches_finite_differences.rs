@@ -119,13 +119,17 @@ fn a_budget_below_the_smallest_tape_is_refused() {
 }
 
 #[test]
-fn spoon_and_thin_walls_are_refused_not_silently_wrong() {
-    let mut sim = common::build(&common::load("powder_transport.ron"), 1);
+fn hardening_is_refused_not_silently_wrong() {
+    let src = SRC.replace(
+        "friction_deg: 30.0))",
+        "friction_deg: 30.0, hardening: Some((35.0, 9.0, 0.2, 10.0))))",
+    );
+    let mut sim = common::build(&common::parse(&src).unwrap(), 1);
     let err = gradient(&mut sim, 1, &Loss::MeanL1(target()), Tape::Budget(1 << 30))
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("cannot be differentiated yet") && err.contains("spoon"),
+        err.contains("cannot be differentiated yet") && err.contains("hardening"),
         "{err}"
     );
 }
