@@ -359,3 +359,238 @@ fn gravity_and_domain_walls() {
     let ad = dotv(&w.resource::<GridAdj>().velocity, &dv) + w.resource::<GravityAdj>().0.dot(dg);
     check("gravity + domain walls", fd, ad);
 }
+
+#[test]
+fn constitutive_elastic() {
+    use powderlab::materials::elastic::Elastic;
+    let mut rng = Rng(8);
+    let (mut w, e) = world(&mut rng);
+    w.entity_mut(e).remove::<DruckerPrager>();
+    w.entity_mut(e).insert(Elastic {
+        density: 1000.0,
+        youngs_modulus: 1e5,
+        poisson_ratio: 0.3,
+    });
+    w.run_system_once(systems::svd::svd).unwrap();
+    let s0 = w.get::<SvdFactors>(e).unwrap().clone();
+    let ft0 = w.get::<TrialDeformation>(e).unwrap().0.clone();
+    let (wf, wa) = (rng.ms(N), rng.ms(N));
+    let (du, ds, dft) = (rng.ms(N), rng.vs(N), rng.ms(N));
+    let ds: Vec<DVec3> = ds.iter().map(|d| *d * 0.01).collect();
+    let loss = |w: &mut World, s: f64| {
+        let mut f = w.get_mut::<SvdFactors>(e).unwrap();
+        f.u = axpy_m(&s0.u, s, &du);
+        f.s = axpy_v(&s0.s, s, &ds);
+        w.get_mut::<TrialDeformation>(e).unwrap().0 = axpy_m(&ft0, s, &dft);
+        w.run_system_once(systems::constitutive::constitutive_model::<Elastic>)
+            .unwrap();
+        dotm(&w.get::<DeformationGradient>(e).unwrap().0, &wf)
+            + dotm(&w.get::<P2gAffine>(e).unwrap().0, &wa)
+    };
+    let fd = (loss(&mut w, FD_EPS) - loss(&mut w, -FD_EPS)) / (2.0 * FD_EPS);
+    loss(&mut w, 0.0);
+    w.get_mut::<DeformationGradientAdj>(e).unwrap().0 = wf;
+    w.get_mut::<P2gAffineAdj>(e).unwrap().0 = wa;
+    w.run_system_once(adjoint::constitutive::constitutive_model_adjoint::<Elastic>)
+        .unwrap();
+    let g = w.get::<SvdFactorsAdj>(e).unwrap();
+    let ad =
+        dotm(&g.u, &du) + dotv(&g.s, &ds) + dotm(&w.get::<TrialDeformationAdj>(e).unwrap().0, &dft);
+    check("constitutive<Elastic>", fd, ad);
+}
+
+/// A spinning, translating box tool and a static cup: the contact adjoints with respect to the
+/// velocities (grid or particle), the positions (particles), and the tool's pose and velocity.
+fn collider_world(rng: &mut Rng) -> (World, Entity, Entity) {
+    use powderlab::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity};
+    use powderlab::math::pose::{quat_from_rotation_vector, Pose};
+    use powderlab::math::sdf::Shape;
+    let (mut w, e) = world(rng);
+    w.insert_resource(ColliderInputVelocity(vec![DVec3::ZERO; NG * NG * NG]));
+    let tool = w
+        .spawn((
+            Collider {
+                name: "paddle".into(),
+                index: 0,
+                kind: ColliderKind::Tool,
+                shape: Shape::Box {
+                    half_extents: [0.012, 0.02, 0.015],
+                },
+                friction: 0.3,
+                contact: ContactMode::Separate,
+                band: 0.01,
+                particle_contact: true,
+            },
+            ColliderPose {
+                pose: Pose {
+                    translation: DVec3::new(0.0601234, 0.0598765, 0.0612345),
+                    rotation: quat_from_rotation_vector(DVec3::new(0.2, -0.4, 0.3)),
+                },
+                linear: DVec3::new(0.3, -0.2, 0.1),
+                angular: DVec3::new(1.1, 0.4, -0.7),
+            },
+            ColliderAdj::default(),
+        ))
+        .id();
+    w.spawn((
+        Collider {
+            name: "cup".into(),
+            index: 1,
+            kind: ColliderKind::Container,
+            shape: Shape::Cup {
+                outer_radius: 0.04,
+                height: 0.06,
+                wall_thickness: 0.002,
+                floor_thickness: 0.003,
+            },
+            friction: 0.4,
+            contact: ContactMode::Slip,
+            band: 0.01,
+            particle_contact: true,
+        },
+        ColliderPose {
+            pose: Pose {
+                translation: DVec3::new(0.0612345, 0.0301234, 0.0598765),
+                rotation: glam::DQuat::IDENTITY,
+            },
+            ..Default::default()
+        },
+        ColliderAdj::default(),
+    ));
+    w.resource_mut::<Grid>()
+        .mass
+        .iter_mut()
+        .for_each(|m| *m = 1.0);
+    (w, e, tool)
+}
+
+fn perturb_tool(w: &mut World, tool: Entity, base: ColliderPose, s: f64, d: &[DVec3; 4]) {
+    use powderlab::math::pose::quat_from_rotation_vector;
+    let mut p = base;
+    p.pose.translation += d[0] * s;
+    p.pose.rotation = (quat_from_rotation_vector(d[1] * s) * base.pose.rotation).normalize();
+    p.linear += d[2] * s;
+    p.angular += d[3] * s;
+    *w.get_mut::<ColliderPose>(tool).unwrap() = p;
+}
+
+fn tool_adj_dot(w: &World, tool: Entity, d: &[DVec3; 4]) -> f64 {
+    let a = w
+        .get::<powderlab::adjoint::grid_collision::ColliderAdj>(tool)
+        .unwrap();
+    a.translation.dot(d[0]) + a.rotation.dot(d[1]) + a.linear.dot(d[2]) + a.angular.dot(d[3])
+}
+
+#[test]
+fn collider_contact() {
+    use powderlab::adjoint::grid_collision::ColliderInputVelocity;
+    let mut rng = Rng(9);
+    let (mut w, _, tool) = collider_world(&mut rng);
+    let len = NG * NG * NG;
+    let (v0, wv, dv) = (rng.vs(len), rng.vs(len), rng.vs(len));
+    let d = [rng.v(), rng.v(), rng.v(), rng.v()];
+    let base = *w.get::<ColliderPose>(tool).unwrap();
+    let loss = |w: &mut World, s: f64| {
+        w.resource_mut::<Grid>().velocity = axpy_v(&v0, s, &dv);
+        perturb_tool(w, tool, base, s, &d);
+        w.run_system_once(systems::grid_collision::collider_contact)
+            .unwrap();
+        dotv(&w.resource::<Grid>().velocity, &wv)
+    };
+    let eps = 1e-8;
+    let fd = (loss(&mut w, eps) - loss(&mut w, -eps)) / (2.0 * eps);
+    perturb_tool(&mut w, tool, base, 0.0, &d);
+    w.resource_mut::<ColliderInputVelocity>().0 = v0;
+    w.resource_mut::<GridAdj>().velocity = wv;
+    w.run_system_once(adjoint::grid_collision::collider_contact_adjoint)
+        .unwrap();
+    let ad = dotv(&w.resource::<GridAdj>().velocity, &dv) + tool_adj_dot(&w, tool, &d);
+    check("collider_contact", fd, ad);
+}
+
+#[test]
+fn particle_collision() {
+    use powderlab::adjoint::particle_collision::ParticleCollisionInput;
+    let mut rng = Rng(10);
+    let (mut w, e, tool) = collider_world(&mut rng);
+    // Particles just outside the paddle's faces and the cup's inner wall, moving into them.
+    let x0: Vec<DVec3> = (0..N)
+        .map(|_| DVec3::new(0.06, 0.06, 0.06) + rng.v() * 0.03)
+        .collect();
+    let v0: Vec<DVec3> = (0..N).map(|_| rng.v() * 2.0).collect();
+    let (wv, dxp, dv) = (rng.vs(N), rng.vs(N), rng.vs(N));
+    let d = [rng.v(), rng.v(), rng.v(), rng.v()];
+    let base = *w.get::<ColliderPose>(tool).unwrap();
+    w.entity_mut(e).insert(ParticleCollisionInput::default());
+    let loss = |w: &mut World, s: f64| {
+        w.get_mut::<Position>(e).unwrap().0 = axpy_v(&x0, s, &dxp);
+        w.get_mut::<Velocity>(e).unwrap().0 = axpy_v(&v0, s, &dv);
+        perturb_tool(w, tool, base, s, &d);
+        w.run_system_once(systems::particle_collision::particle_collision)
+            .unwrap();
+        dotv(&w.get::<Velocity>(e).unwrap().0, &wv)
+    };
+    let eps = 1e-8;
+    let fd = (loss(&mut w, eps) - loss(&mut w, -eps)) / (2.0 * eps);
+    perturb_tool(&mut w, tool, base, 0.0, &d);
+    w.get_mut::<Position>(e).unwrap().0 = x0;
+    w.get_mut::<ParticleCollisionInput>(e).unwrap().0 = v0;
+    w.get_mut::<VelocityAdj>(e).unwrap().0 = wv;
+    w.run_system_once(adjoint::particle_collision::particle_collision_adjoint)
+        .unwrap();
+    let ad = dotv(&w.get::<PositionAdj>(e).unwrap().0, &dxp)
+        + dotv(&w.get::<VelocityAdj>(e).unwrap().0, &dv)
+        + tool_adj_dot(&w, tool, &d);
+    check("particle_collision", fd, ad);
+}
+
+#[test]
+fn tool_move() {
+    use powderlab::adjoint::grid_collision::ColliderAdj;
+    use powderlab::adjoint::tool_move::ControlAdj;
+    let mut rng = Rng(11);
+    let (mut w, _, tool) = collider_world(&mut rng);
+    let u0 = [0.003, -0.002, 0.001, 0.02, 0.05, -0.03];
+    let du: [f64; 6] = std::array::from_fn(|_| rng.f());
+    let base = *w.get::<ColliderPose>(tool).unwrap();
+    let d = [rng.v(), rng.v(), DVec3::ZERO, DVec3::ZERO];
+    let (wt, wr, wl, wa) = (rng.v(), rng.m(), rng.v(), rng.v());
+    w.entity_mut(tool)
+        .insert((Control { per_step: vec![u0] }, ControlAdj(vec![[0.0; 6]])));
+    let loss = |w: &mut World, s: f64| {
+        let u: [f64; 6] = std::array::from_fn(|k| u0[k] + s * du[k]);
+        w.get_mut::<Control>(tool).unwrap().per_step = vec![u];
+        perturb_tool(w, tool, base, s, &d);
+        w.run_system_once(systems::tool_move::tool_move).unwrap();
+        let p = *w.get::<ColliderPose>(tool).unwrap();
+        let r = DMat3::from_quat(p.pose.rotation);
+        wt.dot(p.pose.translation) + dotm(&[r], &[wr]) + wl.dot(p.linear) + wa.dot(p.angular)
+    };
+    let fd = (loss(&mut w, FD_EPS) - loss(&mut w, -FD_EPS)) / (2.0 * FD_EPS);
+    // Adjoint of the outputs: t̄ = wt; θ̄ from tr(W_Rᵀ·R) with δR = [δθ]×R: axial parts of R·W_Rᵀ.
+    perturb_tool(&mut w, tool, base, 0.0, &d);
+    w.get_mut::<Control>(tool).unwrap().per_step = vec![u0];
+    w.run_system_once(systems::tool_move::tool_move).unwrap();
+    let r1 = DMat3::from_quat(w.get::<ColliderPose>(tool).unwrap().pose.rotation);
+    let a = r1 * wr.transpose();
+    // glam is column-major: a.z_axis.y is A[1][2].
+    let g_theta = DVec3::new(
+        a.z_axis.y - a.y_axis.z,
+        a.x_axis.z - a.z_axis.x,
+        a.y_axis.x - a.x_axis.y,
+    );
+    *w.get_mut::<ColliderAdj>(tool).unwrap() = ColliderAdj {
+        friction: 0.0,
+        translation: wt,
+        rotation: g_theta,
+        linear: wl,
+        angular: wa,
+    };
+    w.run_system_once(adjoint::tool_move::tool_move_adjoint)
+        .unwrap();
+    let g = w.get::<ColliderAdj>(tool).unwrap();
+    let gu = w.get::<ControlAdj>(tool).unwrap().0[0];
+    let ad =
+        g.translation.dot(d[0]) + g.rotation.dot(d[1]) + (0..6).map(|k| gu[k] * du[k]).sum::<f64>();
+    check("tool_move", fd, ad);
+}
