@@ -24,6 +24,14 @@
 //!
 //! The schedule holds only what the scene needs ([`systems::SubstepPlan`]). Pure maths lives in
 //! [`math`]; the driver is [`sim::Simulation`].
+//!
+//! ## Gradients
+//!
+//! Each stage has a mirrored adjoint system in [`adjoint`] (same file name, `_adjoint` suffix),
+//! run in the reverse stage order by a checkpointed backward pass ([`adjoint::tape::gradient`]).
+//! It differentiates a loss on the final positions with respect to the initial state, the
+//! material parameters, collider friction, gravity and the tools' controls, start poses and
+//! skill parameters; `powderlab gradcheck` compares each against central differences.
 
 /// The scalar type of the simulation. Everything runs in f64: gradient checks need it, and the
 /// forward pass shares the same code.

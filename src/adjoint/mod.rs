@@ -12,9 +12,8 @@
 //! [`SubstepStart`](crate::components::SubstepStart) for the stages whose inputs were
 //! overwritten in place.
 //!
-//! Not yet differentiated, and refused loudly by the backward driver: rotating tools, colliders
-//! whose SDF has no Hessian (the spoon) where the Hessian is needed (a moving tool, or particle
-//! contact), and Klár hardening.
+//! Not yet differentiated, and refused loudly by the backward driver: Klár hardening (the
+//! friction angle's dependence on the plastic strain).
 
 pub mod advect;
 pub mod constitutive;
