@@ -19,6 +19,7 @@ fn sim_for(name: &str, n_grid: Option<usize>, stage_timers: bool) -> Simulation 
         &SimOptions {
             threads: Some(2),
             stage_timers,
+            ..Default::default()
         },
     )
     .unwrap();

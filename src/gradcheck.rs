@@ -6,6 +6,7 @@
 //! scalar directions: a uniform shift of all initial velocities or positions along an axis,
 //! each material's E, ν and friction angle, each collider's friction, and gravity's y.
 
+use crate::adjoint::loss::Dosing;
 use crate::adjoint::tape::{gradient, Loss, Tape};
 use crate::components::{Position, Velocity};
 use crate::materials::MaterialSpec;
@@ -55,6 +56,20 @@ pub fn scene_loss(scene: &Scene) -> Loss {
     match scene.loss {
         Some(LossSpec::MeanL1(t)) => Loss::MeanL1(DVec3::from(t)),
         Some(LossSpec::SumDistance(t)) => Loss::SumDistance(DVec3::from(t)),
+        Some(LossSpec::Dosing { grams, width }) => Loss::Dosing(Dosing {
+            cup: scene
+                .target_region()
+                .expect("validated: a dosing loss has a task with a target cup"),
+            particle_mass: scene.particle_masses(),
+            target_mass: grams * 1e-3,
+            width: width.unwrap_or_else(|| {
+                scene
+                    .bodies
+                    .iter()
+                    .map(|b| scene.particle_spacing(b))
+                    .fold(scene.simulation.dx, f64::min)
+            }),
+        }),
         None => Loss::SumDistance(loss_target(scene)),
     }
 }
@@ -132,6 +147,7 @@ pub fn run(
     let loss = scene_loss(scene);
     let target = match &loss {
         Loss::MeanL1(t) | Loss::SumDistance(t) => *t,
+        Loss::Dosing(d) => d.cup.pose.translation,
         Loss::Linear(_) => DVec3::ZERO,
     };
     let t0 = std::time::Instant::now();

@@ -282,6 +282,7 @@ fn bench_backward(
                 "loss": g.loss,
                 "grad_tool_velocity": tool_v,
                 "grad_v0_sum": [gv0.x, gv0.y, gv0.z],
+                "timing_s": g.timing.iter().map(|(k, v)| (k.clone(), json!(v))).collect::<serde_json::Map<_, _>>(),
             })
         );
     } else {
@@ -305,6 +306,10 @@ fn bench_backward(
             "sum of dL/dv0    ({:.6e}, {:.6e}, {:.6e})",
             gv0.x, gv0.y, gv0.z
         );
+        let total: f64 = g.timing.iter().map(|e| e.1).sum();
+        for (k, v) in &g.timing {
+            println!("  {k:<34} {v:>8.3} s  {:>5.1} %", 100.0 * v / total);
+        }
     }
     Ok(())
 }
@@ -321,6 +326,7 @@ fn bench(
         &SimOptions {
             threads,
             stage_timers: stages,
+            ..Default::default()
         },
     )?;
     if !json_out {

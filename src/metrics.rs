@@ -1,27 +1,8 @@
 //! Scene metrics: transported particles, mean height and energies.
 
+use crate::adjoint::loss::CupRegion;
 use crate::components::*;
-use crate::math::pose::Pose;
-use crate::math::sdf::Shape;
 use bevy_ecs::prelude::*;
-use glam::DVec3;
-
-/// Whether a world point lies in the cavity of a cup (above its floor, inside its inner wall,
-/// below its rim).
-pub fn inside_cup(shape: &Shape, pose: &Pose, x: DVec3) -> bool {
-    match *shape {
-        Shape::Cup {
-            outer_radius,
-            height,
-            wall_thickness,
-            floor_thickness,
-        } => {
-            let p = pose.to_local(x);
-            p.x.hypot(p.z) < outer_radius - wall_thickness && p.y > floor_thickness && p.y < height
-        }
-        _ => false,
-    }
-}
 
 /// Summary numbers of one frame.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -47,7 +28,7 @@ pub fn frame_metrics(world: &mut World, target: Option<&str>) -> FrameMetrics {
         let mut q = world.query::<(&Collider, &ColliderPose)>();
         q.iter(world)
             .find(|(c, _)| c.name == t)
-            .map(|(c, p)| (c.shape.clone(), p.pose))
+            .and_then(|(c, p)| CupRegion::of(&c.shape, p.pose))
     });
     let mut m = FrameMetrics::default();
     let mut sum_y = 0.0;
@@ -60,8 +41,8 @@ pub fn frame_metrics(world: &mut World, target: Option<&str>) -> FrameMetrics {
             m.kinetic_energy += 0.5 * b.particle_mass * s2;
             m.gravitational_energy -= b.particle_mass * g.dot(*x);
             m.max_speed = m.max_speed.max(s2.sqrt());
-            if let Some((shape, pose)) = &cup {
-                if inside_cup(shape, pose, *x) {
+            if let Some(cup) = &cup {
+                if cup.inside(*x) {
                     m.transported += 1;
                     m.transported_mass += b.particle_mass;
                 }

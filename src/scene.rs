@@ -5,9 +5,11 @@
 //! task (for metrics), and the recording options. See `scenes/README.md` for every field and
 //! its default.
 
+use crate::adjoint::loss::CupRegion;
 use crate::components::ContactMode;
 use crate::error::{FieldError, SceneError};
 use crate::materials::MaterialSpec;
+use crate::math::pose::Pose;
 use crate::math::sdf::Shape;
 use crate::skills::SkillSpec;
 use glam::{DQuat, DVec3};
@@ -258,6 +260,15 @@ pub enum LossSpec {
     MeanL1((f64, f64, f64)),
     /// `Σ_p ‖x_p − t‖` (seed paper eq. 5).
     SumDistance((f64, f64, f64)),
+    /// Dosing: `((M − m*)/m*)²`, with `M` the soft mass inside the task's target cup
+    /// (`crate::adjoint::loss`). Needs a `task`.
+    Dosing {
+        /// Target mass m* (g), > 0.
+        grams: f64,
+        /// Width of the soft indicator's ramps (m), > 0. Default: the particle spacing.
+        #[serde(default)]
+        width: Option<f64>,
+    },
 }
 
 /// Recording options.
@@ -562,6 +573,19 @@ impl Scene {
                 ));
             }
         }
+        if let Some(LossSpec::Dosing { grams, width }) = self.loss {
+            if self.task.is_none() {
+                return Err(FieldError::new(
+                    "loss",
+                    "Dosing(..)",
+                    "a scene with a `task` naming the target cup",
+                ));
+            }
+            pos("loss.grams", grams, grams > 0.0, "> 0 g")?;
+            if let Some(w) = width {
+                pos("loss.width", w, w > 0.0, "> 0 m")?;
+            }
+        }
         if let Some(r) = &self.record {
             if r.every == 0 {
                 return Err(FieldError::new("record.every", "0", ">= 1 step"));
@@ -579,6 +603,31 @@ impl Scene {
             b.to_radians(),
             g.to_radians(),
         )
+    }
+
+    /// Particle spacing of a body (m): `dx/∛ppc`.
+    pub fn particle_spacing(&self, body: &BodySpec) -> f64 {
+        let ppa = (body.particles_per_cell as f64).cbrt().round();
+        self.simulation.dx / ppa
+    }
+
+    /// Mass of one particle of each body (kg), in scene order.
+    pub fn particle_masses(&self) -> Vec<f64> {
+        self.bodies
+            .iter()
+            .map(|b| self.materials[&b.material].density() * self.particle_spacing(b).powi(3))
+            .collect()
+    }
+
+    /// The cavity of the task's target cup, if the scene has a task.
+    pub fn target_region(&self) -> Option<CupRegion> {
+        let t = self.task.as_ref()?;
+        let c = self.colliders.iter().find(|c| c.name == t.target)?;
+        let pose = Pose {
+            translation: DVec3::from(c.position),
+            rotation: Scene::collider_rotation(c),
+        };
+        CupRegion::of(&c.shape, pose)
     }
 
     /// Grid node (0,0,0) and the upper node corner.

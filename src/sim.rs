@@ -38,6 +38,18 @@ pub struct SimOptions {
     pub threads: Option<usize>,
     /// Time each stage separately (for `bench`).
     pub stage_timers: bool,
+    /// Run the systems in the caller's rayon pool instead of a pool of the simulation's own
+    /// (`threads` is then ignored). For many simulations side by side, such as the rollouts of
+    /// `optimize`: the caller's pool balances them, and an idle worker helps a running one.
+    pub shared_pool: bool,
+}
+
+/// Runs `f` in `pool`, or in the caller's pool when there is none.
+pub(crate) fn run_in<R: Send>(pool: &Option<rayon::ThreadPool>, f: impl FnOnce() -> R + Send) -> R {
+    match pool {
+        Some(p) => p.install(f),
+        None => f(),
+    }
 }
 
 /// A running simulation.
@@ -45,7 +57,8 @@ pub struct Simulation {
     pub world: World,
     schedule: Schedule,
     stage_schedules: Option<Vec<(&'static str, Schedule)>>,
-    pool: rayon::ThreadPool,
+    /// The simulation's own worker pool; `None` runs in the caller's (`SimOptions::shared_pool`).
+    pub(crate) pool: Option<rayon::ThreadPool>,
     pub plan: SubstepPlan,
     pub stability: StabilityReport,
     /// Global steps of the scene's horizon.
@@ -131,16 +144,6 @@ fn fill_points(scene: &Scene, body: &BodySpec) -> Vec<DVec3> {
     }
 }
 
-/// Tiny deterministic generator (SplitMix64) for the lattice jitter.
-fn splitmix(state: &mut u64) -> f64 {
-    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    let mut z = *state;
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 53) as f64
-}
-
 impl Simulation {
     /// Builds a simulation from a validated scene.
     pub fn new(scene: &Scene, opts: &SimOptions) -> Result<Simulation, SceneError> {
@@ -220,7 +223,7 @@ impl Simulation {
         let mut wave_speed = 0.0f64;
         let mut min_particle_mass = f64::INFINITY;
         let mut materials_used: Vec<MaterialSpec> = Vec::new();
-        let mut seed = s.seed;
+        let mut rng = crate::util::SplitMix64(s.seed);
         for (i, b) in scene.bodies.iter().enumerate() {
             let mat = &scene.materials[&b.material];
             let mat = match mat {
@@ -229,16 +232,11 @@ impl Simulation {
                 }
                 other => other.clone(),
             };
-            let ppa = (b.particles_per_cell as f64).cbrt().round();
-            let h = dx / ppa;
+            let h = scene.particle_spacing(b);
             let mut x: Vec<DVec3> = fill_points(scene, b);
             if let Lattice::Jittered(j) = b.lattice {
                 for p in &mut x {
-                    let d = DVec3::new(
-                        splitmix(&mut seed),
-                        splitmix(&mut seed),
-                        splitmix(&mut seed),
-                    );
+                    let d = DVec3::new(rng.uniform(), rng.uniform(), rng.uniform());
                     *p += (d - DVec3::splat(0.5)) * (j * h);
                 }
             }
@@ -394,15 +392,21 @@ impl Simulation {
             });
         }
         let threads = opts.threads.unwrap_or(s.threads);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .map_err(|e| SceneError::Parse {
-                file: scene.path.clone(),
-                line: 1,
-                col: 1,
-                message: format!("cannot start {threads} worker threads: {e}"),
-            })?;
+        let pool = if opts.shared_pool {
+            None
+        } else {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .map_err(|e| SceneError::Parse {
+                        file: scene.path.clone(),
+                        line: 1,
+                        col: 1,
+                        message: format!("cannot start {threads} worker threads: {e}"),
+                    })?,
+            )
+        };
         Ok(Simulation {
             world,
             schedule,
@@ -439,14 +443,11 @@ impl Simulation {
             .unwrap_or_default()
     }
 
-    /// The worker pool the systems run in.
-    pub fn pool(&self) -> &rayon::ThreadPool {
-        &self.pool
-    }
-
     /// Worker threads in use.
     pub fn threads(&self) -> usize {
-        self.pool.current_num_threads()
+        self.pool
+            .as_ref()
+            .map_or_else(rayon::current_num_threads, |p| p.current_num_threads())
     }
 
     pub fn clock(&self) -> Clock {
@@ -461,16 +462,23 @@ impl Simulation {
     pub fn substep(&mut self) -> Result<(), SimError> {
         let world = &mut self.world;
         match &mut self.stage_schedules {
-            None => self.pool.install(|| self.schedule.run(world)),
+            None => run_in(&self.pool, || self.schedule.run(world)),
             Some(stages) => {
                 for (name, s) in stages.iter_mut() {
                     let t = Instant::now();
-                    self.pool.install(|| s.run(world));
+                    run_in(&self.pool, || s.run(world));
                     let dt = t.elapsed().as_secs_f64();
                     world.resource_mut::<StageTimers>().add(name, dt);
                 }
             }
         }
+        self.finish_substep()
+    }
+
+    /// Ends a substep whose stages have run: stops on a recorded non-finite value, else advances
+    /// the clock.
+    pub(crate) fn finish_substep(&mut self) -> Result<(), SimError> {
+        let world = &mut self.world;
         let mut clock = *world.resource::<Clock>();
         if let Some(fault) = world.resource_mut::<Health>().fault.take() {
             return Err(SimError::NonFinite {
@@ -555,7 +563,7 @@ impl Simulation {
         };
         match stages.iter_mut().find(|s| s.0 == name) {
             Some((_, s)) => {
-                self.pool.install(|| s.run(world));
+                run_in(&self.pool, || s.run(world));
                 true
             }
             None => false,

@@ -94,26 +94,19 @@ pub(crate) fn world_hessian(
         * r.transpose()
 }
 
-/// Sums per-item collider adjoints (one row per grid node or particle) into the colliders'
-/// [`ColliderAdj`], in fixed-size chunks so the sum order does not depend on the thread count.
+/// Per-collider adjoints accumulated over one chunk of [`REDUCE_CHUNK`] grid nodes or
+/// particles.
+pub(crate) type ChunkAdj = [NodeAdj; MAX_COLLIDERS];
+
+/// Adds the chunks' collider adjoints, in chunk order, into the colliders' [`ColliderAdj`]:
+/// the chunks are fixed-size, so the sum order does not depend on the thread count.
 pub(crate) fn add_collider_adjoints<'a>(
-    per_item: &[[NodeAdj; MAX_COLLIDERS]],
+    chunks: &[ChunkAdj],
     colliders: impl Iterator<Item = &'a mut ColliderAdj>,
 ) {
     for (ci, ca) in colliders.enumerate() {
-        let partial: Vec<NodeAdj> = per_item
-            .par_chunks(REDUCE_CHUNK)
-            .map(|ch| {
-                ch.iter().fold(NodeAdj::default(), |s, n| NodeAdj {
-                    friction: s.friction + n[ci].friction,
-                    translation: s.translation + n[ci].translation,
-                    rotation: s.rotation + n[ci].rotation,
-                    linear: s.linear + n[ci].linear,
-                    angular: s.angular + n[ci].angular,
-                })
-            })
-            .collect();
-        for p in &partial {
+        for ch in chunks {
+            let p = &ch[ci];
             ca.friction += p.friction;
             ca.translation += p.translation;
             ca.rotation += p.rotation;
@@ -147,50 +140,57 @@ pub fn collider_contact_adjoint(
     );
     let m_min = params.empty_node_mass;
     let view: Vec<(&Collider, &ColliderPose)> = cs.iter().map(|(c, p, _)| (*c, *p)).collect();
-    let mut per_node = vec![[NodeAdj::default(); MAX_COLLIDERS]; adj.velocity.len()];
-    adj.velocity
-        .par_iter_mut()
-        .zip(per_node.par_iter_mut())
+    let node = |idx: usize, g: &mut DVec3, acc: &mut ChunkAdj| {
+        if grid.mass[idx] <= m_min {
+            return;
+        }
+        let x = grid.node_position(idx);
+        let mut hits = [(0usize, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
+        let mut count = 0;
+        let mut v = input.0[idx];
+        for (ci, (c, pose)) in view.iter().enumerate() {
+            let reach = c.shape.bounding_radius() + c.band;
+            if (x - pose.pose.translation).length_squared() > reach * reach {
+                continue;
+            }
+            let (phi, normal) = pose.sdf(&c.shape, x);
+            if phi < c.band {
+                let vb = pose.velocity_at(x);
+                hits[count] = (ci, v, normal, vb);
+                v = contact_response(v, vb, normal, c.contact, c.friction);
+                count += 1;
+            }
+        }
+        for &(ci, vin, normal, vb) in hits[..count].iter().rev() {
+            let (c, pose) = view[ci];
+            let a = contact_response_adj(vin, vb, normal, c.contact, c.friction, *g);
+            *g = a.v;
+            acc[ci].friction += a.mu;
+            if c.kind == ColliderKind::Tool {
+                // Grid nodes do not move: the returned x̄ has nowhere to go.
+                acc[ci].add_tool_contact(
+                    pose,
+                    world_hessian(&c.shape, pose, x),
+                    x,
+                    normal,
+                    (0.0, a.n, a.v_body),
+                );
+            }
+        }
+    };
+    let chunks: Vec<ChunkAdj> = adj
+        .velocity
+        .par_chunks_mut(REDUCE_CHUNK)
         .enumerate()
-        .for_each(|(idx, (g, acc))| {
-            if grid.mass[idx] <= m_min {
-                return;
+        .map(|(c, gs)| {
+            let mut acc = ChunkAdj::default();
+            for (j, g) in gs.iter_mut().enumerate() {
+                node(c * REDUCE_CHUNK + j, g, &mut acc);
             }
-            let x = grid.node_position(idx);
-            let mut hits = [(0usize, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
-            let mut count = 0;
-            let mut v = input.0[idx];
-            for (ci, (c, pose)) in view.iter().enumerate() {
-                let reach = c.shape.bounding_radius() + c.band;
-                if (x - pose.pose.translation).length_squared() > reach * reach {
-                    continue;
-                }
-                let (phi, normal) = pose.sdf(&c.shape, x);
-                if phi < c.band {
-                    let vb = pose.velocity_at(x);
-                    hits[count] = (ci, v, normal, vb);
-                    v = contact_response(v, vb, normal, c.contact, c.friction);
-                    count += 1;
-                }
-            }
-            for &(ci, vin, normal, vb) in hits[..count].iter().rev() {
-                let (c, pose) = view[ci];
-                let a = contact_response_adj(vin, vb, normal, c.contact, c.friction, *g);
-                *g = a.v;
-                acc[ci].friction += a.mu;
-                if c.kind == ColliderKind::Tool {
-                    // Grid nodes do not move: the returned x̄ has nowhere to go.
-                    acc[ci].add_tool_contact(
-                        pose,
-                        world_hessian(&c.shape, pose, x),
-                        x,
-                        normal,
-                        (0.0, a.n, a.v_body),
-                    );
-                }
-            }
-        });
-    add_collider_adjoints(&per_node, cs.iter_mut().map(|(_, _, a)| &mut **a));
+            acc
+        })
+        .collect();
+    add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, a)| &mut **a));
 }
 
 pub fn domain_walls_adjoint(

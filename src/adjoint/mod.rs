@@ -22,6 +22,7 @@ pub mod g2p;
 pub mod gravity;
 pub mod grid_collision;
 pub mod grid_reset;
+pub mod loss;
 pub mod p2g;
 pub mod particle_collision;
 pub mod svd;

@@ -6,7 +6,7 @@
 //! stick/slip switch and the reach test are one-sided (see `crate::math::contact`).
 
 use crate::adjoint::grid_collision::{
-    add_collider_adjoints, world_hessian, ColliderAdj, NodeAdj, MAX_COLLIDERS,
+    add_collider_adjoints, world_hessian, ChunkAdj, ColliderAdj, MAX_COLLIDERS, REDUCE_CHUNK,
 };
 use crate::components::*;
 use crate::systems::particle_collision::{project_particle, project_particle_adj, MARGIN_CELLS};
@@ -41,45 +41,51 @@ pub fn particle_collision_adjoint(
     let dt = params.dt_sub;
     let margin = MARGIN_CELLS * grid.dx;
     for (x, input, mut gx, mut gv) in &mut bodies {
-        let mut acc = vec![[NodeAdj::default(); MAX_COLLIDERS]; x.0.len()];
-        gv.0.par_iter_mut()
-            .zip(gx.0.par_iter_mut().zip(acc.par_iter_mut()))
-            .enumerate()
-            .for_each(|(i, (g, (gxi, acc)))| {
-                let xp = x.0[i];
-                let mut v = input.0[i];
-                let mut hits =
-                    [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
-                let mut count = 0;
-                for &(ci, c, pose) in &view {
-                    let reach = c.shape.bounding_radius() + margin + dt * v.length();
-                    if (xp - pose.pose.translation).length_squared() > reach * reach {
-                        continue;
-                    }
-                    let (phi, n) = pose.sdf(&c.shape, xp);
-                    if phi - margin > dt * v.length() {
-                        continue;
-                    }
-                    let vb = pose.velocity_at(xp);
-                    hits[count] = (ci, v, phi, n, vb);
-                    v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction);
-                    count += 1;
+        let particle = |i: usize, g: &mut DVec3, gxi: &mut DVec3, acc: &mut ChunkAdj| {
+            let xp = x.0[i];
+            let mut v = input.0[i];
+            let mut hits = [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
+            let mut count = 0;
+            for &(ci, c, pose) in &view {
+                let reach = c.shape.bounding_radius() + margin + dt * v.length();
+                if (xp - pose.pose.translation).length_squared() > reach * reach {
+                    continue;
                 }
-                for &(ci, vin, phi, n, vb) in hits[..count].iter().rev() {
-                    let (c, pose) = (cs[ci].0, cs[ci].1);
-                    let a = project_particle_adj(
-                        vin, phi, n, vb, dt, margin, c.contact, c.friction, *g,
-                    );
-                    *g = a.v;
-                    let h = world_hessian(&c.shape, pose, xp);
-                    acc[ci].friction += a.mu;
-                    if c.kind == ColliderKind::Tool {
-                        *gxi += acc[ci].add_tool_contact(pose, h, xp, n, (a.phi, a.n, a.v_body));
-                    } else {
-                        *gxi += n * a.phi + h * a.n;
-                    }
+                let (phi, n) = pose.sdf(&c.shape, xp);
+                if phi - margin > dt * v.length() {
+                    continue;
                 }
-            });
-        add_collider_adjoints(&acc, cs.iter_mut().map(|(_, _, a)| &mut **a));
+                let vb = pose.velocity_at(xp);
+                hits[count] = (ci, v, phi, n, vb);
+                v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction);
+                count += 1;
+            }
+            for &(ci, vin, phi, n, vb) in hits[..count].iter().rev() {
+                let (c, pose) = (cs[ci].0, cs[ci].1);
+                let a =
+                    project_particle_adj(vin, phi, n, vb, dt, margin, c.contact, c.friction, *g);
+                *g = a.v;
+                let h = world_hessian(&c.shape, pose, xp);
+                acc[ci].friction += a.mu;
+                if c.kind == ColliderKind::Tool {
+                    *gxi += acc[ci].add_tool_contact(pose, h, xp, n, (a.phi, a.n, a.v_body));
+                } else {
+                    *gxi += n * a.phi + h * a.n;
+                }
+            }
+        };
+        let chunks: Vec<ChunkAdj> =
+            gv.0.par_chunks_mut(REDUCE_CHUNK)
+                .zip(gx.0.par_chunks_mut(REDUCE_CHUNK))
+                .enumerate()
+                .map(|(c, (gs, gxs))| {
+                    let mut acc = ChunkAdj::default();
+                    for (j, (g, gxi)) in gs.iter_mut().zip(gxs.iter_mut()).enumerate() {
+                        particle(c * REDUCE_CHUNK + j, g, gxi, &mut acc);
+                    }
+                    acc
+                })
+                .collect();
+        add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, a)| &mut **a));
     }
 }

@@ -14,16 +14,18 @@
 
 use crate::adjoint::gravity::GravityAdj;
 use crate::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity, WallInputVelocity};
+pub use crate::adjoint::loss::Loss;
 use crate::adjoint::particle_collision::ParticleCollisionInput;
 use crate::adjoint::tool_move::ControlAdj;
 use crate::adjoint::{add_adjoint_stage, SubstepAdjoint};
 use crate::components::*;
 use crate::error::AdjointError;
 use crate::math::sdf::Shape;
-use crate::sim::Simulation;
+use crate::sim::{run_in, Simulation};
 use crate::systems::{self, new_schedule, Stage};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
+use std::time::Instant;
 
 /// The particle state of every body (scene order) plus the clock.
 #[derive(Clone, Debug)]
@@ -81,11 +83,8 @@ pub fn snapshot(world: &mut World) -> Snapshot {
         })
         .collect();
     b.sort_by_key(|e| e.0);
-    let mut cq = world.query::<(&Collider, &ColliderPose)>();
-    let mut cs: Vec<(usize, ColliderPose)> = cq.iter(world).map(|(c, p)| (c.index, *p)).collect();
-    cs.sort_by_key(|e| e.0);
     Snapshot {
-        colliders: cs.into_iter().map(|e| e.1).collect(),
+        colliders: collider_states(world),
         bodies: b.into_iter().map(|e| e.1).collect(),
         clock: *world.resource::<Clock>(),
     }
@@ -116,63 +115,160 @@ pub fn restore(world: &mut World, snap: &Snapshot) {
     }
 }
 
-/// A loss on the final particle positions.
-#[derive(Clone, Debug)]
-pub enum Loss {
-    /// `mean_p Σ_d |x_p,d − t_d|`, the Taichi reference benchmark's loss.
-    MeanL1(DVec3),
-    /// `Σ_p ‖x_p − t‖` (seed paper eq. 5).
-    SumDistance(DVec3),
-    /// `Σ_bodies Σ_p w_p·x_p` with given weights (closed-form checks).
-    Linear(Vec<Vec<DVec3>>),
+/// Everything the adjoint stages of one substep read that its forward stages computed: the
+/// substep-start state, the SVD factors, the P2G affine term and scatter order, the grid and the
+/// inputs of the contact responses, the collider poses and the clock. The backward pass records
+/// the substeps of one step while it recomputes them, then reverses them from these records, so
+/// each substep's forward runs twice in all (taped pass and recomputation), not three times.
+///
+/// Recording swaps buffers with the world instead of copying them (the forward stages overwrite
+/// every swapped-out scratch buffer before reading it); only the SVD's `V`, which the next
+/// substep's SVD warm-starts from, is copied.
+struct SubstepRecord {
+    clock: Clock,
+    colliders: Vec<ColliderPose>,
+    bodies: Vec<BodyRecord>,
+    grid_mass: Vec<f64>,
+    grid_momentum: Vec<DVec3>,
+    grid_velocity: Vec<DVec3>,
+    collider_input: Vec<DVec3>,
+    wall_input: Vec<DVec3>,
 }
 
-impl Loss {
-    /// The loss and `∂L/∂x` per body. `|·|` and `‖·‖` use the subgradient 0 at 0.
-    pub fn eval(&self, xs: &[Vec<DVec3>]) -> (f64, Vec<Vec<DVec3>>) {
-        let n: usize = xs.iter().map(|x| x.len()).sum();
-        let mut l = 0.0;
-        let g = xs
+struct BodyRecord {
+    start: SubstepStart,
+    /// The velocity advect used (after particle collision).
+    v_end: Vec<DVec3>,
+    collision_input: Vec<DVec3>,
+    trial: Vec<DMat3>,
+    svd: SvdFactors,
+    affine: Vec<DMat3>,
+    order: ScatterOrder,
+}
+
+type RecordQuery<'a> = (
+    &'a mut Position,
+    &'a mut Velocity,
+    &'a mut SubstepStart,
+    &'a mut ParticleCollisionInput,
+    &'a mut TrialDeformation,
+    &'a mut SvdFactors,
+    &'a mut P2gAffine,
+    &'a mut ScatterOrder,
+);
+
+impl SubstepRecord {
+    /// A record with buffers of the world's sizes.
+    fn like(world: &mut World, bodies: &[Entity]) -> SubstepRecord {
+        let grid = world.resource::<Grid>();
+        let (grid_mass, grid_momentum, grid_velocity) = (
+            grid.mass.clone(),
+            grid.momentum.clone(),
+            grid.velocity.clone(),
+        );
+        let bodies = bodies
             .iter()
-            .enumerate()
-            .map(|(b, x)| {
-                x.iter()
-                    .enumerate()
-                    .map(|(i, p)| match self {
-                        Loss::MeanL1(t) => {
-                            let d = *p - *t;
-                            l += (d.x.abs() + d.y.abs() + d.z.abs()) / n as f64;
-                            let s = |v: f64| {
-                                if v > 0.0 {
-                                    1.0
-                                } else if v < 0.0 {
-                                    -1.0
-                                } else {
-                                    0.0
-                                }
-                            };
-                            DVec3::new(s(d.x), s(d.y), s(d.z)) / n as f64
-                        }
-                        Loss::SumDistance(t) => {
-                            let d = *p - *t;
-                            let len = d.length();
-                            l += len;
-                            if len > 0.0 {
-                                d / len
-                            } else {
-                                DVec3::ZERO
-                            }
-                        }
-                        Loss::Linear(w) => {
-                            l += w[b][i].dot(*p);
-                            w[b][i]
-                        }
-                    })
-                    .collect()
+            .map(|&e| {
+                let n = world.get::<Position>(e).map_or(0, |x| x.0.len());
+                BodyRecord {
+                    start: SubstepStart::default(),
+                    v_end: Vec::new(),
+                    collision_input: Vec::new(),
+                    trial: vec![DMat3::ZERO; n],
+                    svd: SvdFactors {
+                        u: vec![DMat3::ZERO; n],
+                        s: vec![DVec3::ZERO; n],
+                        v: vec![DMat3::ZERO; n],
+                    },
+                    affine: vec![DMat3::ZERO; n],
+                    order: ScatterOrder::default(),
+                }
             })
             .collect();
-        (l, g)
+        SubstepRecord {
+            clock: Clock::default(),
+            colliders: Vec::new(),
+            bodies,
+            collider_input: grid_velocity.clone(),
+            wall_input: grid_velocity.clone(),
+            grid_mass,
+            grid_momentum,
+            grid_velocity,
+        }
     }
+
+    /// Exchanges the recorded buffers with the world's. `save`: the world's current values go
+    /// into the record (the SVD's `V` is copied, so the world keeps it for the next warm
+    /// start); otherwise the record's values go back into the world.
+    fn exchange(
+        &mut self,
+        world: &mut World,
+        bodies: &[Entity],
+        q: &mut QueryState<RecordQuery>,
+        save: bool,
+    ) {
+        for (&e, b) in bodies.iter().zip(&mut self.bodies) {
+            let (mut x, mut v, mut start, mut pc, mut trial, mut svd, mut affine, mut order) =
+                q.get_mut(world, e).expect("a body entity");
+            if save {
+                b.v_end.clone_from(&v.0);
+            } else {
+                // The world as advect saw it: substep-start positions, final velocities.
+                std::mem::swap(&mut v.0, &mut b.v_end);
+                x.0.clone_from(&b.start.x);
+            }
+            std::mem::swap(&mut *start, &mut b.start);
+            std::mem::swap(&mut pc.0, &mut b.collision_input);
+            std::mem::swap(&mut trial.0, &mut b.trial);
+            std::mem::swap(&mut svd.u, &mut b.svd.u);
+            std::mem::swap(&mut svd.s, &mut b.svd.s);
+            if save {
+                b.svd.v.clone_from(&svd.v);
+            } else {
+                std::mem::swap(&mut svd.v, &mut b.svd.v);
+            }
+            std::mem::swap(&mut affine.0, &mut b.affine);
+            std::mem::swap(&mut *order, &mut b.order);
+        }
+        {
+            let mut grid = world.resource_mut::<Grid>();
+            std::mem::swap(&mut grid.mass, &mut self.grid_mass);
+            std::mem::swap(&mut grid.momentum, &mut self.grid_momentum);
+            std::mem::swap(&mut grid.velocity, &mut self.grid_velocity);
+        }
+        std::mem::swap(
+            &mut world.resource_mut::<ColliderInputVelocity>().0,
+            &mut self.collider_input,
+        );
+        std::mem::swap(
+            &mut world.resource_mut::<WallInputVelocity>().0,
+            &mut self.wall_input,
+        );
+        if save {
+            self.colliders = collider_states(world);
+        } else {
+            let mut cq = world.query::<(&Collider, &mut ColliderPose)>();
+            for (c, mut p) in cq.iter_mut(world) {
+                *p = self.colliders[c.index];
+            }
+            *world.resource_mut::<Clock>() = self.clock;
+        }
+    }
+
+    /// Bytes held by one record of a world.
+    fn bytes(particles: usize, nodes: usize) -> usize {
+        // start (x, v, C, F), final v, collision input, trial F, U, σ, V, affine, order; grid
+        // m, p, v and the two contact inputs.
+        particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 72 + 24 + 72 + 72 + 4) + nodes * (8 + 4 * 24)
+    }
+}
+
+/// Collider poses in scene order.
+fn collider_states(world: &mut World) -> Vec<ColliderPose> {
+    let mut cq = world.query::<(&Collider, &ColliderPose)>();
+    let mut cs: Vec<(usize, ColliderPose)> = cq.iter(world).map(|(c, p)| (c.index, *p)).collect();
+    cs.sort_by_key(|e| e.0);
+    cs.into_iter().map(|e| e.1).collect()
 }
 
 /// (scene index, name, ∂L/∂t(0), ∂L/∂u per step, ∂L/∂θ(0)) of one tool.
@@ -204,33 +300,58 @@ pub struct Gradients {
     pub checkpoint_every: usize,
     /// Bytes of particle state held at the peak (checkpoints + one segment + one step).
     pub tape_bytes: usize,
+    /// Wall seconds per part of the pass: the taped forward, the recomputations, each stage's
+    /// forward re-run and adjoint, in first-run order.
+    pub timing: Vec<(String, f64)>,
 }
 
-/// Snapshots the tape holds at its peak with checkpoint interval `k`: `⌈T/k⌉` checkpoints, the
-/// `k` step-start states of one segment and the `N_sub` substep-start states of one step.
-pub fn tape_snapshots(steps: usize, substeps: usize, k: usize) -> usize {
-    steps.div_ceil(k) + k + substeps
+/// Accumulated wall time per named part.
+#[derive(Default)]
+struct Timing(Vec<(String, f64)>);
+
+impl Timing {
+    fn add(&mut self, name: &str, secs: f64) {
+        match self.0.iter_mut().find(|e| e.0 == name) {
+            Some(e) => e.1 += secs,
+            None => self.0.push((name.to_string(), secs)),
+        }
+    }
+    fn add_stage(&mut self, prefix: &str, stage: Stage, secs: f64) {
+        match self
+            .0
+            .iter_mut()
+            .find(|e| e.0.starts_with(prefix) && &e.0[prefix.len()..] == stage.name())
+        {
+            Some(e) => e.1 += secs,
+            None => self.0.push((format!("{prefix}{}", stage.name()), secs)),
+        }
+    }
 }
 
-/// The checkpoint interval for a memory budget: the largest `k` whose tape fits (the first
-/// forward pass keeps the last segment's step states, so the recomputation is the forward pass
-/// minus the last segment); an error if even the smallest tape (`k ≈ √T`) does not fit.
+/// Snapshots the tape holds at its peak with checkpoint interval `k`: `⌈T/k⌉` checkpoints and
+/// the `k` step-start states of one segment (plus one step's substep records, counted apart).
+pub fn tape_snapshots(steps: usize, k: usize) -> usize {
+    steps.div_ceil(k) + k
+}
+
+/// The checkpoint interval for a memory budget: the largest `k` whose tape (snapshots plus one
+/// step's substep records of `records_bytes`) fits; the first forward pass keeps the last
+/// segment's step states, so a longer segment saves recomputation. An error if even the
+/// smallest tape (`k ≈ √T`) does not fit.
 pub fn checkpoint_interval(
     steps: usize,
-    substeps: usize,
     snapshot_bytes: usize,
+    records_bytes: usize,
     budget_bytes: usize,
 ) -> Result<usize, AdjointError> {
-    // The last segment's step states are kept from the first forward pass, so a longer
-    // segment saves recomputation: take the largest k that fits, else the smallest tape.
-    let fits = |k: usize| tape_snapshots(steps, substeps, k) * snapshot_bytes <= budget_bytes;
-    if let Some(k) = (1..=steps.max(1)).rev().find(|&k| fits(k)) {
+    let bytes = |k: usize| tape_snapshots(steps, k) * snapshot_bytes + records_bytes;
+    if let Some(k) = (1..=steps.max(1)).rev().find(|&k| bytes(k) <= budget_bytes) {
         return Ok(k);
     }
     let k = (1..=steps.max(1))
-        .min_by_key(|&k| (tape_snapshots(steps, substeps, k), usize::MAX - k))
+        .min_by_key(|&k| (tape_snapshots(steps, k), usize::MAX - k))
         .unwrap_or(1);
-    let need = tape_snapshots(steps, substeps, k) * snapshot_bytes;
+    let need = bytes(k);
     Err(AdjointError::NotDifferentiable(format!(
         "the smallest tape for {steps} steps (checkpoint every {k} steps) needs {need} bytes, over the memory budget of {budget_bytes} bytes: raise the budget or shorten the horizon"
     )))
@@ -273,7 +394,8 @@ type AdjQuery<'a> = (
 );
 
 fn check_finite(
-    world: &mut World,
+    world: &World,
+    q: &mut QueryState<AdjQuery>,
     step: usize,
     substep: usize,
     stage: Stage,
@@ -292,7 +414,6 @@ fn check_finite(
             index,
             value,
         };
-    let mut q = world.query::<AdjQuery>();
     for (b, gx, gv, gc, gf, gft, gsvd, ga) in q.iter(world) {
         for &field in fields {
             let hit = match field {
@@ -388,10 +509,15 @@ pub fn gradient(
         ));
     }
     let start = snapshot(&mut sim.world);
+    let nodes = sim.world.resource::<Grid>().mass.len();
+    let particles: usize = start.bodies.iter().map(|b| b.x.len()).sum();
+    let records_bytes = substeps * SubstepRecord::bytes(particles, nodes);
     let k = match tape {
-        Tape::Budget(b) => checkpoint_interval(steps, substeps, start.bytes(), b)?,
+        Tape::Budget(b) => checkpoint_interval(steps, start.bytes(), records_bytes, b)?,
         Tape::Every(k) => k.clamp(1, steps.max(1)),
     };
+    let mut timing = Timing::default();
+    let t_pass = Instant::now();
     // Forward, keeping a checkpoint every k steps.
     let mut checkpoints = Vec::with_capacity(steps.div_ceil(k));
     let last_segment = (steps - 1) / k * k;
@@ -405,11 +531,9 @@ pub fn gradient(
         }
         sim.step()?;
     }
-    let final_x: Vec<Vec<DVec3>> = snapshot(&mut sim.world)
-        .bodies
-        .into_iter()
-        .map(|b| b.x)
-        .collect();
+    let final_state = snapshot(&mut sim.world);
+    timing.add("forward (taped)", t_pass.elapsed().as_secs_f64());
+    let final_x: Vec<Vec<DVec3>> = final_state.bodies.iter().map(|b| b.x.clone()).collect();
     let (loss_value, g_x) = loss.eval(&final_x);
 
     // Adjoint state.
@@ -459,11 +583,10 @@ pub fn gradient(
             MaterialAdj::default(),
         ));
     }
-    // Forward stages up to G2P (no advect), and the adjoint stages, one schedule each so the
-    // driver can save the wall input and check finiteness between them.
-    let forward: Vec<(Stage, Schedule)> = Stage::ALL
+    // The forward and the adjoint stages, one schedule each, so the driver can save the contact
+    // inputs between forward stages and check finiteness between adjoint stages.
+    let mut forward: Vec<(Stage, Schedule)> = Stage::ALL
         .iter()
-        .filter(|s| **s != Stage::Advect)
         .filter_map(|&st| {
             let mut s = new_schedule();
             systems::add_stage(&mut s, st, &plan).then_some((st, s))
@@ -478,16 +601,27 @@ pub fn gradient(
             add_adjoint_stage(&mut s, st, &plan).then_some((st, s))
         })
         .collect();
-    let mut forward = forward;
     let mut collider_only = new_schedule();
     collider_only.add_systems(systems::grid_collision::collider_contact);
     let mut walls_only = new_schedule();
     walls_only.add_systems(systems::grid_collision::domain_walls);
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(sim.threads())
-        .build()
-        .map_err(|e| crate::error::SimError::Other(e.to_string()))?;
 
+    let mut body_ents: Vec<(usize, Entity)> = ents.iter().map(|&(e, bi, _)| (bi, e)).collect();
+    body_ents.sort_by_key(|e| e.0);
+    let body_ents: Vec<Entity> = body_ents.into_iter().map(|e| e.1).collect();
+    let mut record_query = sim.world.query::<RecordQuery>();
+    let mut start_query = sim.world.query::<(
+        &Position,
+        &Velocity,
+        &AffineVelocity,
+        &DeformationGradient,
+        &mut SubstepStart,
+        &mut ParticleCollisionInput,
+    )>();
+    let mut records: Vec<SubstepRecord> = (0..substeps)
+        .map(|_| SubstepRecord::like(&mut sim.world, &body_ents))
+        .collect();
+    let mut adj_query = sim.world.query::<AdjQuery>();
     let mut peak_snaps = checkpoints.len();
     for (ci, cp) in checkpoints.iter().enumerate().rev() {
         let s0 = ci * k;
@@ -496,70 +630,89 @@ pub fn gradient(
         let step_starts = if s0 == last_segment {
             std::mem::take(&mut last_starts)
         } else {
+            let t = Instant::now();
             restore(&mut sim.world, cp);
             let mut v = Vec::with_capacity(s1 - s0);
             for _ in s0..s1 {
                 v.push(snapshot(&mut sim.world));
                 sim.step()?;
             }
+            timing.add("recompute: step starts", t.elapsed().as_secs_f64());
             v
         };
+        peak_snaps = peak_snaps.max(checkpoints.len() + step_starts.len());
         for (si, ss) in step_starts.iter().enumerate().rev() {
             let step = s0 + si;
-            // Substep-start states of the step.
+            // Recompute the step's substeps, recording each one.
             restore(&mut sim.world, ss);
             sim.world.resource_mut::<Clock>().substep = 0;
-            let mut sub_starts = Vec::with_capacity(substeps);
-            for _ in 0..substeps {
-                sub_starts.push(snapshot(&mut sim.world));
-                sim.substep()?;
-            }
-            peak_snaps = peak_snaps.max(checkpoints.len() + step_starts.len() + sub_starts.len());
-            for (j, sub) in sub_starts.iter().enumerate().rev() {
-                restore(&mut sim.world, sub);
-                {
-                    let mut q = sim.world.query::<(&Body, &mut SubstepStart)>();
-                    for (b, mut st) in q.iter_mut(&mut sim.world) {
-                        let sn = &sub.bodies[b.index];
-                        st.x.clone_from(&sn.x);
-                        st.v.clone_from(&sn.v);
-                        st.c.clone_from(&sn.c);
-                        st.f.clone_from(&sn.f);
-                    }
+            for record in records.iter_mut() {
+                let clock = *sim.world.resource::<Clock>();
+                let t = Instant::now();
+                for (x, v, c, f, mut st, _) in start_query.iter_mut(&mut sim.world) {
+                    st.x.clone_from(&x.0);
+                    st.v.clone_from(&v.0);
+                    st.c.clone_from(&c.0);
+                    st.f.clone_from(&f.0);
                 }
+                timing.add("recompute: substep starts", t.elapsed().as_secs_f64());
                 for (stage, s) in forward.iter_mut() {
-                    if *stage == Stage::ParticleCollision {
-                        let mut q = sim
-                            .world
-                            .query::<(&Velocity, &mut ParticleCollisionInput)>();
-                        for (v, mut input) in q.iter_mut(&mut sim.world) {
-                            input.0.clone_from(&v.0);
-                        }
-                    }
-                    if *stage == Stage::GridCollision {
-                        // Save the inputs of the collider and wall responses for their adjoints.
-                        let v = sim.world.resource::<Grid>().velocity.clone();
-                        sim.world
-                            .resource_mut::<ColliderInputVelocity>()
-                            .0
-                            .clone_from(&v);
-                        if plan.has_colliders {
+                    let t = Instant::now();
+                    match stage {
+                        Stage::ParticleCollision => {
+                            for (_, v, _, _, _, mut input) in start_query.iter_mut(&mut sim.world) {
+                                input.0.clone_from(&v.0);
+                            }
                             let world = &mut sim.world;
-                            pool.install(|| collider_only.run(world));
+                            run_in(&sim.pool, || s.run(world));
                         }
-                        let v = sim.world.resource::<Grid>().velocity.clone();
-                        sim.world.resource_mut::<WallInputVelocity>().0 = v;
-                        let world = &mut sim.world;
-                        pool.install(|| walls_only.run(world));
-                        continue;
+                        Stage::GridCollision => {
+                            // Save the inputs of the collider and wall responses.
+                            {
+                                let w = &mut sim.world;
+                                let v = std::mem::take(&mut w.resource_mut::<Grid>().velocity);
+                                w.resource_mut::<ColliderInputVelocity>().0.clone_from(&v);
+                                w.resource_mut::<Grid>().velocity = v;
+                            }
+                            if plan.has_colliders {
+                                let world = &mut sim.world;
+                                run_in(&sim.pool, || collider_only.run(world));
+                            }
+                            {
+                                let w = &mut sim.world;
+                                let v = std::mem::take(&mut w.resource_mut::<Grid>().velocity);
+                                w.resource_mut::<WallInputVelocity>().0.clone_from(&v);
+                                w.resource_mut::<Grid>().velocity = v;
+                            }
+                            let world = &mut sim.world;
+                            run_in(&sim.pool, || walls_only.run(world));
+                        }
+                        _ => {
+                            let world = &mut sim.world;
+                            run_in(&sim.pool, || s.run(world));
+                        }
                     }
-                    let world = &mut sim.world;
-                    pool.install(|| s.run(world));
+                    timing.add_stage("recompute: ", *stage, t.elapsed().as_secs_f64());
                 }
+                sim.finish_substep()?;
+                let t = Instant::now();
+                record.exchange(&mut sim.world, &body_ents, &mut record_query, true);
+                record.clock = clock;
+                timing.add("record substep", t.elapsed().as_secs_f64());
+            }
+            // Reverse them.
+            for (j, record) in records.iter_mut().enumerate().rev() {
+                let t = Instant::now();
+                record.exchange(&mut sim.world, &body_ents, &mut record_query, false);
+                timing.add("record substep", t.elapsed().as_secs_f64());
                 for (stage, s) in adjoint.iter_mut() {
+                    let t = Instant::now();
                     let world = &mut sim.world;
-                    pool.install(|| s.run(world));
-                    check_finite(&mut sim.world, step, j, *stage)?;
+                    run_in(&sim.pool, || s.run(world));
+                    let t1 = Instant::now();
+                    check_finite(&sim.world, &mut adj_query, step, j, *stage)?;
+                    timing.add_stage("adjoint: ", *stage, (t1 - t).as_secs_f64());
+                    timing.add("adjoint: finiteness checks", t1.elapsed().as_secs_f64());
                 }
             }
         }
@@ -618,11 +771,7 @@ pub fn gradient(
     sim.world.remove_resource::<GridAdj>();
     sim.world.remove_resource::<WallInputVelocity>();
     sim.world.remove_resource::<GravityAdj>();
-    let last = checkpoints.last().expect("at least one step");
-    restore(&mut sim.world, last);
-    for _ in (checkpoints.len() - 1) * k..steps {
-        sim.step()?;
-    }
+    restore(&mut sim.world, &final_state);
     Ok(Gradients {
         loss: loss_value,
         x0: per.iter().map(|e| e.1.clone()).collect(),
@@ -635,7 +784,8 @@ pub fn gradient(
         skills: skill_gradients(&sim.scene, &tools),
         controls: tools.into_iter().map(|e| (e.1, e.3)).collect(),
         checkpoint_every: k,
-        tape_bytes: peak_snaps * snap_bytes,
+        tape_bytes: peak_snaps * snap_bytes + records_bytes,
+        timing: timing.0,
     })
 }
 

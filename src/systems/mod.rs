@@ -214,12 +214,44 @@ pub fn build_stage_schedules(plan: &SubstepPlan) -> Vec<(&'static str, Schedule)
         .collect()
 }
 
-/// Index of the first non-finite vector, found deterministically in parallel.
+/// Whether every value is finite: `Σ 0·x` is 0 when all are and NaN otherwise (`0·±∞` is NaN)
+/// and never overflows. Eight independent partial sums let the loop vectorise, so the common
+/// case costs one streaming pass.
+#[inline]
+fn all_finite(values: &[f64]) -> bool {
+    let mut acc = [0.0f64; 8];
+    let chunks = values.chunks_exact(8);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for k in 0..8 {
+            acc[k] += 0.0 * c[k];
+        }
+    }
+    acc.iter().all(|a| *a == 0.0) && rest.iter().all(|x| x.is_finite())
+}
+
+/// Index of the first non-finite vector. Checks in fixed chunks in parallel; only a chunk that
+/// fails is searched, so the answer is the same for any thread count.
 pub fn first_nonfinite_vec(xs: &[DVec3]) -> Option<usize> {
-    xs.par_iter().position_first(|v| !v.is_finite())
+    first_nonfinite(xs, |c: &[DVec3]| all_finite(bytemuck::cast_slice(c)))
+        .and_then(|s| xs[s..].iter().position(|v| !v.is_finite()).map(|i| s + i))
 }
 
 /// Index of the first non-finite matrix.
 pub fn first_nonfinite_mat(xs: &[DMat3]) -> Option<usize> {
-    xs.par_iter().position_first(|m| !m.is_finite())
+    first_nonfinite(xs, |c: &[DMat3]| all_finite(bytemuck::cast_slice(c)))
+        .and_then(|s| xs[s..].iter().position(|m| !m.is_finite()).map(|i| s + i))
+}
+
+/// Items per chunk of the finiteness check.
+const CHECK_CHUNK: usize = 8192;
+
+/// Start of the first chunk that fails `ok`.
+fn first_nonfinite<T: Sync>(xs: &[T], ok: impl Fn(&[T]) -> bool + Sync) -> Option<usize> {
+    if xs.len() <= CHECK_CHUNK {
+        return (!ok(xs)).then_some(0);
+    }
+    xs.par_chunks(CHECK_CHUNK)
+        .position_first(|c| !ok(c))
+        .map(|c| c * CHECK_CHUNK)
 }
