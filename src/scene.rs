@@ -217,6 +217,10 @@ pub struct ColliderSpec {
     /// Contact band in grid cells for grid contact. Default 1.
     #[serde(default = "default_band")]
     pub band_cells: f64,
+    /// Blend the grid contact in linearly across the band (continuous in the collider's pose,
+    /// so gradients through a moving tool see no jumps) instead of all or nothing. Default false.
+    #[serde(default)]
+    pub soft_band: bool,
     /// Project particles against this collider (thin walls). Default true.
     #[serde(default = "default_true")]
     pub particle_contact: bool,

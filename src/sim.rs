@@ -206,6 +206,7 @@ impl Simulation {
                     friction: c.friction,
                     contact: c.contact,
                     band: c.band_cells * dx,
+                    soft_band: c.soft_band,
                     particle_contact: c.particle_contact,
                 },
                 ColliderPose {

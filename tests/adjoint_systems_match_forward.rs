@@ -401,7 +401,7 @@ fn constitutive_elastic() {
 
 /// A spinning, translating box tool and a static cup: the contact adjoints with respect to the
 /// velocities (grid or particle), the positions (particles), and the tool's pose and velocity.
-fn collider_world(rng: &mut Rng) -> (World, Entity, Entity) {
+fn collider_world(rng: &mut Rng, soft_band: bool) -> (World, Entity, Entity) {
     use powderlab::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity};
     use powderlab::math::pose::{quat_from_rotation_vector, Pose};
     use powderlab::math::sdf::Shape;
@@ -419,6 +419,7 @@ fn collider_world(rng: &mut Rng) -> (World, Entity, Entity) {
                 friction: 0.3,
                 contact: ContactMode::Separate,
                 band: 0.01,
+                soft_band,
                 particle_contact: true,
             },
             ColliderPose {
@@ -446,6 +447,7 @@ fn collider_world(rng: &mut Rng) -> (World, Entity, Entity) {
             friction: 0.4,
             contact: ContactMode::Slip,
             band: 0.01,
+            soft_band: false,
             particle_contact: true,
         },
         ColliderPose {
@@ -483,9 +485,20 @@ fn tool_adj_dot(w: &World, tool: Entity, d: &[DVec3; 4]) -> f64 {
 
 #[test]
 fn collider_contact() {
+    collider_contact_with(false);
+}
+
+/// The tool's grid contact blended in across its band (`soft_band`): the blend weight depends on
+/// the tool's pose, which the adjoint must carry through `φ̄`.
+#[test]
+fn collider_contact_soft_band() {
+    collider_contact_with(true);
+}
+
+fn collider_contact_with(soft_band: bool) {
     use powderlab::adjoint::grid_collision::ColliderInputVelocity;
     let mut rng = Rng(9);
-    let (mut w, _, tool) = collider_world(&mut rng);
+    let (mut w, _, tool) = collider_world(&mut rng, soft_band);
     let len = NG * NG * NG;
     let (v0, wv, dv) = (rng.vs(len), rng.vs(len), rng.vs(len));
     let d = [rng.v(), rng.v(), rng.v(), rng.v()];
@@ -512,7 +525,7 @@ fn collider_contact() {
 fn particle_collision() {
     use powderlab::adjoint::particle_collision::ParticleCollisionInput;
     let mut rng = Rng(10);
-    let (mut w, e, tool) = collider_world(&mut rng);
+    let (mut w, e, tool) = collider_world(&mut rng, false);
     // Particles just outside the paddle's faces and the cup's inner wall, moving into them.
     let x0: Vec<DVec3> = (0..N)
         .map(|_| DVec3::new(0.06, 0.06, 0.06) + rng.v() * 0.03)
@@ -549,7 +562,7 @@ fn tool_move() {
     use powderlab::adjoint::grid_collision::ColliderAdj;
     use powderlab::adjoint::tool_move::ControlAdj;
     let mut rng = Rng(11);
-    let (mut w, _, tool) = collider_world(&mut rng);
+    let (mut w, _, tool) = collider_world(&mut rng, false);
     let u0 = [0.003, -0.002, 0.001, 0.02, 0.05, -0.03];
     let du: [f64; 6] = std::array::from_fn(|_| rng.f());
     let base = *w.get::<ColliderPose>(tool).unwrap();

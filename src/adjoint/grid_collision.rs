@@ -12,7 +12,7 @@
 //! differentiated yet: the backward driver refuses scenes with tools.
 
 use crate::components::*;
-use crate::math::contact::{contact_response, contact_response_adj};
+use crate::math::contact::{band_weight, contact_response, contact_response_adj};
 use crate::systems::grid_collision::wall_normal;
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
@@ -121,10 +121,12 @@ pub(crate) fn add_collider_adjoints<'a>(
 /// tool's pose and velocity adjoints follow [`NodeAdj::add_tool_contact`] (H: the Hessian of
 /// the local SDF).
 ///
-/// Exact within a contact regime; the band edge `φ = band` and the separate/approach switch are
-/// one-sided. The band test itself moves with the tool: a node entering or leaving the band is
-/// a jump the adjoint does not see (the reason finite differences through contact need a
-/// small step, see shared/reference/RESULTS.md).
+/// Exact within a contact regime; the separate/approach switch is one-sided. With a hard band
+/// the band test moves with the tool: a node entering or leaving the band is a jump the adjoint
+/// does not see (the reason finite differences through contact need a small step, see
+/// shared/reference/RESULTS.md). A soft band blends the response in by `w(φ) = 1 − φ/band`,
+/// which is continuous at the band's edge: the jump becomes a kink, and `φ̄ = w′·(r − v)·v̄′`
+/// carries the pose's influence through the blend weight.
 pub fn collider_contact_adjoint(
     params: Res<SimParams>,
     grid: Res<Grid>,
@@ -145,7 +147,7 @@ pub fn collider_contact_adjoint(
             return;
         }
         let x = grid.node_position(idx);
-        let mut hits = [(0usize, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
+        let mut hits = [(0usize, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, 0.0); MAX_COLLIDERS];
         let mut count = 0;
         let mut v = input.0[idx];
         for (ci, (c, pose)) in view.iter().enumerate() {
@@ -156,15 +158,26 @@ pub fn collider_contact_adjoint(
             let (phi, normal) = pose.sdf(&c.shape, x);
             if phi < c.band {
                 let vb = pose.velocity_at(x);
-                hits[count] = (ci, v, normal, vb);
-                v = contact_response(v, vb, normal, c.contact, c.friction);
+                hits[count] = (ci, v, normal, vb, phi);
+                let r = contact_response(v, vb, normal, c.contact, c.friction);
+                let (w, _) = band_weight(phi, c.band, c.soft_band);
+                v = if w == 1.0 { r } else { v + (r - v) * w };
                 count += 1;
             }
         }
-        for &(ci, vin, normal, vb) in hits[..count].iter().rev() {
+        for &(ci, vin, normal, vb, phi) in hits[..count].iter().rev() {
             let (c, pose) = view[ci];
-            let a = contact_response_adj(vin, vb, normal, c.contact, c.friction, *g);
-            *g = a.v;
+            // v′ = v + w(φ)·(r − v): r̄ = w·v̄′, v̄ = (1 − w)·v̄′ + (∂r/∂v)ᵀ·r̄, φ̄ = w′·(r − v)·v̄′.
+            let (w, dw) = band_weight(phi, c.band, c.soft_band);
+            let g_out = *g;
+            let a = contact_response_adj(vin, vb, normal, c.contact, c.friction, g_out * w);
+            let g_phi = if dw != 0.0 {
+                let r = contact_response(vin, vb, normal, c.contact, c.friction);
+                dw * (r - vin).dot(g_out)
+            } else {
+                0.0
+            };
+            *g = if w == 1.0 { a.v } else { a.v + g_out * (1.0 - w) };
             acc[ci].friction += a.mu;
             if c.kind == ColliderKind::Tool {
                 // Grid nodes do not move: the returned x̄ has nowhere to go.
@@ -173,7 +186,7 @@ pub fn collider_contact_adjoint(
                     world_hessian(&c.shape, pose, x),
                     x,
                     normal,
-                    (0.0, a.n, a.v_body),
+                    (g_phi, a.n, a.v_body),
                 );
             }
         }

@@ -28,6 +28,9 @@ pub struct Collider {
     pub contact: ContactMode,
     /// Grid nodes with `φ < band` (m) are in contact.
     pub band: f64,
+    /// Blend the grid response in by `1 − φ/band` instead of all or nothing
+    /// (`crate::math::contact::band_weight`).
+    pub soft_band: bool,
     /// Whether the particle-collision stage projects particles against this collider.
     pub particle_contact: bool,
 }

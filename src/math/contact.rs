@@ -33,6 +33,26 @@ pub fn contact_response(v: DVec3, v_body: DVec3, n: DVec3, mode: ContactMode, mu
     }
 }
 
+/// Weight of a grid node's contact response at signed distance `φ` from a collider with band
+/// `b` (the node is in contact when `φ < b`), and its derivative `dw/dφ`:
+///
+/// - hard band: `w = 1` in the band (all or nothing at `φ = b`, a jump in the node's velocity
+///   whenever a moving tool brings a node into its band);
+/// - soft band (after PlasticineLab's soft contact): `w = clamp(1 − φ/b, 0, 1)`, full inside the
+///   body and fading linearly to 0 at the band's edge, so the blended velocity
+///   `v′ = v + w·(response(v) − v)` is continuous in the collider's pose and the gradient
+///   through a moving tool sees no jumps (kinks at `φ = 0` and `φ = b`: one-sided there).
+#[inline(always)]
+pub fn band_weight(phi: f64, band: f64, soft: bool) -> (f64, f64) {
+    if !soft || phi <= 0.0 || band <= 0.0 {
+        (1.0, 0.0)
+    } else if phi < band {
+        (1.0 - phi / band, -1.0 / band)
+    } else {
+        (0.0, 0.0)
+    }
+}
+
 /// Adjoints of [`contact_response`]'s inputs.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ContactAdj {

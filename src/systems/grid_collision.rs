@@ -2,13 +2,14 @@
 //!
 //! For a node at `x_i` with `φ(x_i) < band` against a collider, the velocity gets the contact
 //! response of `crate::math::contact` with the SDF gradient as the normal and the collider's
-//! rigid velocity at `x_i` (so friction acts on the velocity relative to the tool). Domain walls
+//! rigid velocity at `x_i` (so friction acts on the velocity relative to the tool), in full or,
+//! for a soft band, blended in by `1 − φ/band` (`crate::math::contact::band_weight`). Domain walls
 //! act on the outer `cells` node layers of each face with the axis as the normal.
 //!
 //! Reads `Collider`, `ColliderPose`, `DomainWalls`, `SimParams`; writes `Grid::velocity`.
 
 use crate::components::*;
-use crate::math::contact::contact_response;
+use crate::math::contact::{band_weight, contact_response};
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -42,7 +43,9 @@ pub fn collider_contact(
                 }
                 let (phi, normal) = pose.sdf(&c.shape, x);
                 if phi < c.band {
-                    *v = contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
+                    let r = contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
+                    let (w, _) = band_weight(phi, c.band, c.soft_band);
+                    *v = if w == 1.0 { r } else { *v + (r - *v) * w };
                 }
             }
         });
