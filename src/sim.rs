@@ -207,6 +207,7 @@ impl Simulation {
                     contact: c.contact,
                     band: c.band_cells * dx,
                     soft_band: c.soft_band,
+                    bounding_radius: c.shape.bounding_radius(),
                     particle_contact: c.particle_contact,
                 },
                 ColliderPose {

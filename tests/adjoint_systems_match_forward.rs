@@ -420,6 +420,7 @@ fn collider_world(rng: &mut Rng, soft_band: bool) -> (World, Entity, Entity) {
                 contact: ContactMode::Separate,
                 band: 0.01,
                 soft_band,
+                bounding_radius: f64::INFINITY,
                 particle_contact: true,
             },
             ColliderPose {
@@ -448,6 +449,7 @@ fn collider_world(rng: &mut Rng, soft_band: bool) -> (World, Entity, Entity) {
             contact: ContactMode::Slip,
             band: 0.01,
             soft_band: false,
+            bounding_radius: f64::INFINITY,
             particle_contact: true,
         },
         ColliderPose {

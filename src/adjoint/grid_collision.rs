@@ -151,7 +151,7 @@ pub fn collider_contact_adjoint(
         let mut count = 0;
         let mut v = input.0[idx];
         for (ci, (c, pose)) in view.iter().enumerate() {
-            let reach = c.shape.bounding_radius() + c.band;
+            let reach = c.bounding_radius + c.band;
             if (x - pose.pose.translation).length_squared() > reach * reach {
                 continue;
             }
@@ -177,7 +177,11 @@ pub fn collider_contact_adjoint(
             } else {
                 0.0
             };
-            *g = if w == 1.0 { a.v } else { a.v + g_out * (1.0 - w) };
+            *g = if w == 1.0 {
+                a.v
+            } else {
+                a.v + g_out * (1.0 - w)
+            };
             acc[ci].friction += a.mu;
             if c.kind == ColliderKind::Tool {
                 // Grid nodes do not move: the returned x̄ has nowhere to go.

@@ -9,7 +9,9 @@ use crate::adjoint::grid_collision::{
     add_collider_adjoints, world_hessian, ChunkAdj, ColliderAdj, MAX_COLLIDERS, REDUCE_CHUNK,
 };
 use crate::components::*;
-use crate::systems::particle_collision::{project_particle, project_particle_adj, MARGIN_CELLS};
+use crate::systems::particle_collision::{
+    clear_of, may_reach, project_particle, project_particle_adj, MARGIN_CELLS,
+};
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -47,15 +49,14 @@ pub fn particle_collision_adjoint(
             let mut hits = [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
             let mut count = 0;
             for &(ci, c, pose) in &view {
-                let reach = c.shape.bounding_radius() + margin + dt * v.length();
-                if (xp - pose.pose.translation).length_squared() > reach * reach {
+                if !may_reach(c, pose, xp, v, dt, margin) {
                     continue;
                 }
                 let (phi, n) = pose.sdf(&c.shape, xp);
-                if phi - margin > dt * v.length() {
+                let vb = pose.velocity_at(xp);
+                if clear_of(phi, margin, dt, v, vb) {
                     continue;
                 }
-                let vb = pose.velocity_at(xp);
                 hits[count] = (ci, v, phi, n, vb);
                 v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction);
                 count += 1;

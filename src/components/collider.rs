@@ -31,6 +31,9 @@ pub struct Collider {
     /// Blend the grid response in by `1 − φ/band` instead of all or nothing
     /// (`crate::math::contact::band_weight`).
     pub soft_band: bool,
+    /// `shape.bounding_radius()`, kept so the contact stages' reach tests do not recompute it
+    /// per node and particle.
+    pub bounding_radius: f64,
     /// Whether the particle-collision stage projects particles against this collider.
     pub particle_contact: bool,
 }

@@ -45,13 +45,30 @@ pub fn weights_1d_adj(fx: f64, g_w: [f64; 3]) -> f64 {
     g_w[0] * d[0] + g_w[1] * d[1] + g_w[2] * d[2]
 }
 
+/// `floor` of coordinates in `[0, 2⁶³)` by truncation: a conversion instruction instead of a
+/// libm call on targets without SSE4.1's `roundsd` (x86-64 baseline); the stencil of a particle
+/// in the grid's safe region always has such coordinates.
+#[inline(always)]
+fn floor_nonneg(v: DVec3) -> DVec3 {
+    let f = |x: f64| {
+        debug_assert!(x >= -1.0, "a stencil coordinate below the grid: {x}");
+        let t = x as i64 as f64;
+        if t > x {
+            t - 1.0
+        } else {
+            t
+        }
+    };
+    DVec3::new(f(v.x), f(v.y), f(v.z))
+}
+
 /// Stencil of a particle at `x` on a grid with node `i` at `origin + i·dx`.
 ///
 /// The caller guarantees that the base lies inside the grid (the advect stage keeps particles in
 /// the safe region); `grid_x` is `(x - origin)/dx`.
 #[inline(always)]
 pub fn stencil(grid_x: DVec3) -> Stencil {
-    let b = (grid_x - DVec3::splat(0.5)).floor();
+    let b = floor_nonneg(grid_x - DVec3::splat(0.5));
     let fx = grid_x - b;
     Stencil {
         base: [b.x as usize, b.y as usize, b.z as usize],

@@ -105,7 +105,7 @@ pub fn sd_cylinder_y(p: DVec3, cy: f64, r: f64, hh: f64) -> (f64, DVec3) {
     let axial = DVec3::new(0.0, sign(y), 0.0);
     let (dx, dy) = (rho - r, y.abs() - hh);
     if dx > 0.0 && dy > 0.0 {
-        let l = dx.hypot(dy);
+        let l = (dx * dx + dy * dy).sqrt();
         (l, (radial * dx + axial * dy) / l)
     } else if dx > dy {
         (dx, radial)
@@ -125,7 +125,7 @@ pub fn circle_distance_hessian(p: DVec3, r: f64, y0: f64) -> DMat3 {
     let theta = DVec3::new(-radial.z, 0.0, radial.x);
     let outer = |a: DVec3, b: DVec3| DMat3::from_cols(a * b.x, a * b.y, a * b.z);
     let (dx, dy) = (rho - r, p.y - y0);
-    let d = dx.hypot(dy);
+    let d = (dx * dx + dy * dy).sqrt();
     if d == 0.0 {
         return DMat3::ZERO;
     }
@@ -148,7 +148,7 @@ pub fn cylinder_hessian(p: DVec3, cy: f64, r: f64, hh: f64) -> DMat3 {
     let y = p.y - cy;
     let (dx, dy) = (rho - r, y.abs() - hh);
     if dx > 0.0 && dy > 0.0 {
-        let d = dx.hypot(dy);
+        let d = (dx * dx + dy * dy).sqrt();
         let axial = DVec3::new(0.0, y.signum(), 0.0);
         let n = (radial * dx + axial * dy) / d;
         (outer(radial, radial) + outer(DVec3::Y, DVec3::Y) - outer(n, n)) * (1.0 / d)
@@ -173,10 +173,10 @@ pub fn sd_cut_hollow_sphere(p: DVec3, r: f64, h: f64, t: f64) -> (f64, DVec3) {
     };
     let (g_rho, g_y, d) = if h * rho < w * p.y {
         let (a, b) = (rho - w, p.y - h);
-        let l = a.hypot(b).max(1e-300);
+        let l = (a * a + b * b).sqrt().max(1e-300);
         (a / l, b / l, l)
     } else {
-        let l = rho.hypot(p.y).max(1e-300);
+        let l = (rho * rho + p.y * p.y).sqrt().max(1e-300);
         let s = sign(l - r);
         (s * rho / l, s * p.y / l, (l - r).abs())
     };

@@ -37,13 +37,14 @@ pub fn collider_contact(
             let i = idx / (n[1] * n[2]);
             let x = origin + DVec3::new(i as f64, j as f64, k as f64) * dx;
             for (c, pose) in &cs {
-                let reach = c.shape.bounding_radius() + c.band;
+                let reach = c.bounding_radius + c.band;
                 if (x - pose.pose.translation).length_squared() > reach * reach {
                     continue;
                 }
                 let (phi, normal) = pose.sdf(&c.shape, x);
                 if phi < c.band {
-                    let r = contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
+                    let r =
+                        contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
                     let (w, _) = band_weight(phi, c.band, c.soft_band);
                     *v = if w == 1.0 { r } else { *v + (r - *v) * w };
                 }

@@ -2,16 +2,23 @@
 //!
 //! A 1–2 mm spoon bowl on a 2.5–5 mm grid is thinner than a grid cell, so grid contact alone
 //! lets particles through. After G2P every particle is projected again against the collider
-//! SDFs at their end-of-substep pose. With `φ` and `n` the SDF and gradient at `x_p`, the
-//! advected position `x_p + Δt·v_p` keeps `φ ≥ margin` to first order when
+//! SDFs at their end-of-substep pose. With `φ` and `n` the SDF and gradient at `x_p` and `v_b`
+//! the collider's velocity there, the advected position `x_p + Δt·v_p` keeps `φ ≥ margin` to
+//! first order, both against the surface where it is now (the pose the substep ends with) and,
+//! for a surface coming towards the particle, where it will be after the next substep's move,
+//! when
 //!
 //! ```text
-//! v_p·n ≥ v_min = (margin − φ)/Δt
+//! v_p·n ≥ v_min = (margin − φ)/Δt + max(0, v_b·n)
 //! ```
+//!
+//! (a receding surface does not relax the constraint: the particle must be clear of the surface
+//! at the end of this substep too).
 //!
 //! A particle violating it gets exactly `v_p·n = v_min`; its tangential velocity relative to
 //! the collider loses `μ·Δv_n` (Coulomb), or all of it for sticky contact. Particles far from a
-//! collider (`φ − margin > Δt·‖v_p‖`) are untouched.
+//! collider (`φ − margin > Δt·max(‖v_p‖, ‖v_p − v_b‖)`, which implies the inequality) are
+//! untouched.
 //!
 //! Reads `Collider`, `ColliderPose`, `Position`; writes `Velocity`.
 
@@ -20,8 +27,11 @@ use bevy_ecs::prelude::*;
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// Clearance kept between particles and collider surfaces, in grid cells.
-pub const MARGIN_CELLS: f64 = 0.02;
+/// Clearance kept between particles and collider surfaces, in grid cells. The projection is
+/// first order: a particle moving `d = Δt·‖v‖` along a surface of curvature radius `ρ` can come
+/// `d²/2ρ` closer than predicted (6e-5 m was measured at dx = 2.5 mm, on the 15 mm spoon bowl in
+/// the pour), and the margin absorbs that.
+pub const MARGIN_CELLS: f64 = 0.05;
 
 /// Velocity of a particle after the non-penetration projection (see the module docs).
 #[inline(always)]
@@ -36,7 +46,7 @@ pub fn project_particle(
     mode: ContactMode,
     mu: f64,
 ) -> DVec3 {
-    let v_min = (margin - phi) / dt;
+    let v_min = v_body.dot(n).max(0.0) + (margin - phi) / dt;
     let vn = v.dot(n);
     if vn >= v_min {
         return v;
@@ -78,7 +88,9 @@ pub fn project_particle_adj(
     mu: f64,
     g_out: DVec3,
 ) -> ProjectAdj {
-    let v_min = (margin - phi) / dt;
+    let vbn_plus = v_body.dot(n);
+    let approaching = vbn_plus > 0.0;
+    let v_min = vbn_plus.max(0.0) + (margin - phi) / dt;
     let vn = v.dot(n);
     let mut a = ProjectAdj::default();
     if vn >= v_min {
@@ -124,9 +136,40 @@ pub fn project_particle_adj(
     // rel = v − v_b
     a.v += g_rel;
     a.v_body -= g_rel;
-    // v_min = (margin − φ)/dt
+    // v_min = max(0, v_b·n) + (margin − φ)/dt (the max is a kink: one-sided at v_b·n = 0)
+    if approaching {
+        a.v_body += n * g_vmin;
+        a.n += v_body * g_vmin;
+    }
     a.phi = -g_vmin / dt;
     a
+}
+
+/// Whether a particle is so far from a collider that the projection cannot change it:
+/// `φ − margin > Δt·max(‖v‖, ‖v − v_b‖)` implies `v·n ≥ v_min` for every unit `n` (the `‖v‖`
+/// term covers a receding surface, the relative speed an approaching one), so skipping is exact.
+#[inline(always)]
+pub fn clear_of(phi: f64, margin: f64, dt: f64, v: DVec3, v_body: DVec3) -> bool {
+    let speed = v.length_squared().max((v - v_body).length_squared()).sqrt();
+    phi - margin > dt * speed
+}
+
+/// Whether a particle at `x` with velocity `v` can reach a collider within a substep: its
+/// bounding sphere grown by the margin and by the substep's relative motion (the particle's and
+/// the collider's fastest point's). A cheap bound before the SDF: outside it `φ` exceeds
+/// what [`clear_of`] needs, so skipping is exact.
+#[inline(always)]
+pub fn may_reach(
+    c: &Collider,
+    pose: &ColliderPose,
+    x: DVec3,
+    v: DVec3,
+    dt: f64,
+    margin: f64,
+) -> bool {
+    let body_speed = pose.linear.length() + pose.angular.length() * c.bounding_radius;
+    let reach = c.bounding_radius + margin + dt * (v.length() + body_speed);
+    (x - pose.pose.translation).length_squared() <= reach * reach
 }
 
 pub fn particle_collision(
@@ -142,24 +185,15 @@ pub fn particle_collision(
     for (x, mut v) in &mut bodies {
         v.0.par_iter_mut().zip(x.0.par_iter()).for_each(|(v, &x)| {
             for (c, pose) in &cs {
-                let reach = c.shape.bounding_radius() + margin + dt * v.length();
-                if (x - pose.pose.translation).length_squared() > reach * reach {
+                if !may_reach(c, pose, x, *v, dt, margin) {
                     continue;
                 }
                 let (phi, n) = pose.sdf(&c.shape, x);
-                if phi - margin > dt * v.length() {
+                let vb = pose.velocity_at(x);
+                if clear_of(phi, margin, dt, *v, vb) {
                     continue;
                 }
-                *v = project_particle(
-                    *v,
-                    phi,
-                    n,
-                    pose.velocity_at(x),
-                    dt,
-                    margin,
-                    c.contact,
-                    c.friction,
-                );
+                *v = project_particle(*v, phi, n, vb, dt, margin, c.contact, c.friction);
             }
         });
     }
@@ -198,11 +232,11 @@ mod tests {
                 ContactMode::Slip,
                 ContactMode::Separate,
             ][k % 3];
-            let v_min = (margin - phi) / dt;
+            let v_min = vb.dot(n).max(0.0) + (margin - phi) / dt;
             let rel = v - vb;
             let rel_t = rel - rel.dot(n) * n;
             let raw = 1.0 - mu * (v_min - v.dot(n)) / rel_t.length();
-            if (v.dot(n) - v_min).abs() < 1e-3 || raw.abs() < 1e-3 {
+            if (v.dot(n) - v_min).abs() < 1e-3 || raw.abs() < 1e-3 || vb.dot(n).abs() < 1e-3 {
                 continue;
             }
             checked += 1;
@@ -294,5 +328,31 @@ mod tests {
             ),
             w
         );
+    }
+
+    #[test]
+    fn skipping_a_clear_particle_is_exact() {
+        // Whenever `clear_of` lets a particle skip the projection, the projection would have
+        // returned it unchanged, for approaching and receding surfaces alike.
+        let mut rng = crate::util::SplitMix64(11);
+        let mut r = || rng.uniform_in(-1.0, 1.0);
+        let (dt, margin) = (1e-3, 1e-5);
+        let mut skipped = 0;
+        for k in 0..20000 {
+            let v = DVec3::new(r(), r(), r());
+            let n = DVec3::new(r(), r(), r()).normalize();
+            let vb = DVec3::new(r(), r(), r());
+            let phi = 3e-3 * r();
+            let mode = [
+                ContactMode::Sticky,
+                ContactMode::Slip,
+                ContactMode::Separate,
+            ][k % 3];
+            if clear_of(phi, margin, dt, v, vb) {
+                skipped += 1;
+                assert_eq!(project_particle(v, phi, n, vb, dt, margin, mode, 0.4), v);
+            }
+        }
+        assert!(skipped > 1000, "{skipped}");
     }
 }
