@@ -152,3 +152,69 @@ fn non_finite_number() {
         "{msg}"
     );
 }
+
+/// A template tool with a skill control; `ranges` is replaced by the tests.
+const SKILL_TOOL: &str = r#"position: (0.11, 0.11, 0.11)),
+        (name: "spoon", kind: Tool,
+         shape: Spoon(bowl_radius: 0.015, bowl_depth: 0.009, thickness: 0.0015, handle_length: 0.04, handle_radius: 0.0025),
+         position: (0.11, 0.19, 0.11),
+         control: Skill((
+             theta: (0.0, 0.0, 0.0, 0.0, 0.0),
+             ranges: (scoop_depth: (0.008, 0.02), scoop_angle_deg: (10.0, 50.0), lift_height: (0.04, 0.08),
+                      transport_distance: (0.02, 0.04), pour_angle_deg: (60.0, 150.0)),
+             linear_speed: 0.2, angular_speed_deg: 180.0, scoop_stroke: 0.008, surface_height: 0.1,
+         ))),"#;
+
+#[test]
+fn the_skill_template_is_good() {
+    let s = Scene::parse(
+        &GOOD.replace("position: (0.11, 0.11, 0.11)),", SKILL_TOOL),
+        Path::new("good.ron"),
+    )
+    .unwrap();
+    Simulation::new(&s, &SimOptions::default()).unwrap();
+}
+
+#[test]
+fn malformed_skill_range() {
+    let src = GOOD.replace(
+        "position: (0.11, 0.11, 0.11)),",
+        &SKILL_TOOL.replace("lift_height: (0.04, 0.08)", "lift_height: (0.08, 0.04)"),
+    );
+    let msg = error_of(&src);
+    assert!(
+        msg.contains("colliders[1].control.ranges.lift_height")
+            && msg.contains("(0.08, 0.04)")
+            && msg.contains("min <= max")
+            && msg.contains("scenes/bad.ron:14:"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn skill_parameter_outside_the_box() {
+    let src = GOOD.replace(
+        "position: (0.11, 0.11, 0.11)),",
+        &SKILL_TOOL.replace(
+            "theta: (0.0, 0.0, 0.0, 0.0, 0.0)",
+            "theta: (0.0, 1.5, 0.0, 0.0, 0.0)",
+        ),
+    );
+    let msg = error_of(&src);
+    assert!(
+        msg.contains("colliders[1].control.theta[1]") && msg.contains("[-1, 1]"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn dosing_loss_without_a_task() {
+    let msg = error_of(&GOOD.replace(
+        "steps: Some(1)),",
+        "steps: Some(1)),\n    loss: Some(Dosing(grams: 5.0)),",
+    ));
+    assert!(
+        msg.contains("loss") && msg.contains("task") && msg.contains("scenes/bad.ron:3:"),
+        "{msg}"
+    );
+}

@@ -43,3 +43,12 @@ pub fn assert_finite(sim: &mut Simulation) {
         assert!(b.f.iter().all(|f| f.is_finite()) && b.c.iter().all(|c| c.is_finite()));
     }
 }
+
+/// A scene of `tests/scenes`.
+pub fn load_test_scene(name: &str) -> Scene {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests")
+        .join("scenes")
+        .join(name);
+    Scene::load(p).unwrap_or_else(|e| panic!("{e}"))
+}
