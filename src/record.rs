@@ -5,7 +5,8 @@
 //! - `world/tools/<name>`, `world/containers/<name>`: a static `Mesh3D` plus a `Transform3D`
 //!   per recorded frame;
 //! - `metrics/transported_particles`, `metrics/mean_height`, `metrics/kinetic_energy`,
-//!   `metrics/gravitational_energy`: `Scalars`.
+//!   `metrics/gravitational_energy`: `Scalars`;
+//! - whole curves such as an optimisation's loss per epoch ([`Recorder::series`]).
 //!
 //! Timelines: `step` (sequence) and `sim_time` (duration). The file is written to
 //! `<out>.partial` and renamed when the recording is finished, so a reader never sees a
@@ -145,6 +146,26 @@ impl Recorder {
         self.rec.log(
             "metrics/gravitational_energy",
             &Scalars::single(m.gravitational_energy),
+        )?;
+        Ok(())
+    }
+
+    /// Logs a whole curve at once on the sequence timeline `timeline` (1-based), as `Scalars`
+    /// under `metrics/<name>`.
+    pub fn series(
+        &mut self,
+        name: &str,
+        timeline: &'static str,
+        values: impl Iterator<Item = f64>,
+    ) -> anyhow::Result<()> {
+        let values: Vec<f64> = values.collect();
+        let times = rerun::TimeColumn::new_sequence(timeline, 1..=values.len() as i64);
+        self.rec.send_columns(
+            format!("metrics/{name}"),
+            [times],
+            Scalars::update_fields()
+                .with_scalars(values)
+                .columns_of_unit_batches()?,
         )?;
         Ok(())
     }

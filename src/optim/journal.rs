@@ -1,0 +1,139 @@
+//! The run journal: one JSON line per finished rollout, appended and synced to disk before the
+//! next rollout is used. It is what makes `optimize --resume` lose nothing.
+//!
+//! Every method is deterministic given its seed (Θ_init, CMA-ES sampling, SAC's network
+//! initialisation and noise all come from fixed seeds, and a rollout is bitwise reproducible for
+//! any thread count). A resumed run therefore re-executes the methods from the start and asks
+//! the journal before each rollout: a rollout already recorded, with bitwise the same Θ, is
+//! replayed from the journal instead of simulated. A kill loses at most the rollouts in flight;
+//! a torn last line (killed mid-write) is dropped on resume.
+
+use super::Method;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::fs::{File, OpenOptions};
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+/// One finished rollout.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Record {
+    pub method: Method,
+    pub seed: usize,
+    /// The batch the rollout belongs to: the epoch for `grad` and `sac` (one rollout each),
+    /// the generation for `cmaes`, the draw for `random`.
+    pub batch: usize,
+    pub theta: [f64; 5],
+    pub loss: f64,
+    pub indicator: f64,
+    pub transported: f64,
+    pub grad: Option<[f64; 5]>,
+    pub steps: usize,
+    pub substeps: usize,
+    /// Seconds the rollout took (simulation, and the backward pass for `grad`).
+    pub wall_s: f64,
+}
+
+type Key = (Method, usize, usize, [u64; 5]);
+
+fn key(method: Method, seed: usize, batch: usize, theta: &[f64; 5]) -> Key {
+    (method, seed, batch, theta.map(f64::to_bits))
+}
+
+/// The journal of one run directory.
+pub struct Journal {
+    path: PathBuf,
+    file: Mutex<File>,
+    known: HashMap<Key, Record>,
+    replayed: AtomicUsize,
+    ran: AtomicUsize,
+}
+
+impl Journal {
+    /// Opens `path`: a new, empty journal unless `resume`, in which case the finished rollouts
+    /// it holds are loaded (a torn last line is dropped).
+    pub fn open(path: &Path, resume: bool) -> anyhow::Result<Journal> {
+        let mut records = Vec::new();
+        if resume && path.exists() {
+            let text = std::fs::read_to_string(path)?;
+            let mut good_bytes = 0usize;
+            for line in BufReader::new(text.as_bytes()).lines() {
+                let line = line?;
+                match serde_json::from_str::<Record>(&line) {
+                    Ok(r) => {
+                        records.push(r);
+                        good_bytes += line.len() + 1;
+                    }
+                    Err(_) => break,
+                }
+            }
+            if good_bytes < text.len() {
+                // A line torn by a kill: drop it and anything after it.
+                let f = OpenOptions::new().write(true).open(path)?;
+                f.set_len(good_bytes as u64)?;
+                f.sync_all()?;
+            }
+        }
+        let file = OpenOptions::new()
+            .create(true)
+            .append(true)
+            .truncate(false)
+            .open(path)?;
+        if !resume {
+            file.set_len(0)?;
+        }
+        let known = records
+            .into_iter()
+            .map(|r| (key(r.method, r.seed, r.batch, &r.theta), r))
+            .collect();
+        Ok(Journal {
+            path: path.to_path_buf(),
+            file: Mutex::new(file),
+            known,
+            replayed: AtomicUsize::new(0),
+            ran: AtomicUsize::new(0),
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The recorded rollout for this method, seed, batch and Θ (bitwise), if any.
+    pub fn replay(
+        &self,
+        method: Method,
+        seed: usize,
+        batch: usize,
+        theta: &[f64; 5],
+    ) -> Option<Record> {
+        let r = self.known.get(&key(method, seed, batch, theta)).cloned();
+        if r.is_some() {
+            self.replayed.fetch_add(1, Ordering::Relaxed);
+        }
+        r
+    }
+
+    /// Appends a finished rollout and syncs it to disk.
+    pub fn append(&self, r: &Record) -> anyhow::Result<()> {
+        let mut line = serde_json::to_string(r)?;
+        line.push('\n');
+        {
+            let mut f = self.file.lock().expect("journal lock");
+            f.write_all(line.as_bytes())?;
+            f.sync_data()?;
+        }
+        self.ran.fetch_add(1, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// Rollouts replayed from the journal and rollouts simulated by this process.
+    pub fn counts(&self) -> (usize, usize) {
+        (
+            self.replayed.load(Ordering::Relaxed),
+            self.ran.load(Ordering::Relaxed),
+        )
+    }
+}

@@ -1,0 +1,165 @@
+//! The optimisation problem: a scene whose tool follows a skill, and one rollout at given skill
+//! parameters Θ (forward only, or with `∂L/∂Θ` from the adjoint pass).
+
+use crate::adjoint::tape::{gradient, Loss, Tape};
+use crate::error::FieldError;
+use crate::gradcheck::scene_loss;
+use crate::metrics::frame_metrics;
+use crate::scene::{ControlSpec, Scene, TargetValue};
+use crate::sim::{SimOptions, Simulation};
+use anyhow::Context;
+use std::time::Instant;
+
+/// A scene prepared for optimisation.
+#[derive(Clone, Debug)]
+pub struct Problem {
+    pub scene: Scene,
+    /// Index of the skill-driven tool in `scene.colliders`.
+    pub tool: usize,
+    pub loss: Loss,
+    /// Target amount of the indicator metric.
+    pub target: TargetValue,
+    /// Memory budget of one backward pass's tape (bytes).
+    pub tape_budget: usize,
+}
+
+/// What one rollout gives.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Outcome {
+    pub loss: f64,
+    /// `target − transported`, in the target's unit (particles or grams).
+    pub indicator: f64,
+    /// Powder inside the target cup at the end, in the target's unit.
+    pub transported: f64,
+    /// `∂L/∂Θ` (straight-through rounding of the phase step counts), when asked for.
+    pub grad: Option<[f64; 5]>,
+    /// Global steps of the rollout (depends on Θ).
+    pub steps: usize,
+    /// Substeps per step chosen by the stability guard.
+    pub substeps: usize,
+    pub wall_s: f64,
+}
+
+impl Problem {
+    /// Checks that the scene can be optimised: one tool with a `Skill` control and a `task`.
+    pub fn new(scene: Scene, tape_budget: usize) -> Result<Problem, crate::error::SceneError> {
+        let tools: Vec<usize> = scene
+            .colliders
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| matches!(c.control, Some(ControlSpec::Skill(_))))
+            .map(|(i, _)| i)
+            .collect();
+        let tool = match tools.as_slice() {
+            [t] => *t,
+            [] => {
+                return Err(scene.field_error(FieldError::new(
+                    "colliders",
+                    "no tool with a Skill control",
+                    "exactly one tool with `control: Skill((...))`: optimize searches its skill parameters",
+                )))
+            }
+            _ => {
+                return Err(scene.field_error(FieldError::new(
+                    format!("colliders[{}].control", tools[1]),
+                    "a second Skill control",
+                    "exactly one tool with `control: Skill((...))`",
+                )))
+            }
+        };
+        let Some(task) = scene.task.clone() else {
+            return Err(scene.field_error(FieldError::new(
+                "task",
+                "None",
+                "Some((target: \"cup\", target_value: Particles(n) | Grams(g))): the indicator needs a target",
+            )));
+        };
+        let loss = scene_loss(&scene);
+        Ok(Problem {
+            scene,
+            tool,
+            loss,
+            target: task.target_value,
+            tape_budget,
+        })
+    }
+
+    /// The Θ written in the scene.
+    pub fn scene_theta(&self) -> [f64; 5] {
+        match &self.scene.colliders[self.tool].control {
+            Some(ControlSpec::Skill(sk)) => sk.theta,
+            _ => unreachable!("checked in Problem::new"),
+        }
+    }
+
+    /// The scene with the tool's Θ replaced.
+    pub fn scene_at(&self, theta: [f64; 5]) -> Scene {
+        let mut s = self.scene.clone();
+        if let Some(ControlSpec::Skill(sk)) = &mut s.colliders[self.tool].control {
+            sk.theta = theta;
+        }
+        s
+    }
+
+    /// Builds the simulation of Θ. `shared_pool` runs it in the caller's rayon pool.
+    pub fn simulation(&self, theta: [f64; 5], shared_pool: bool) -> anyhow::Result<Simulation> {
+        Ok(Simulation::new(
+            &self.scene_at(theta),
+            &SimOptions {
+                shared_pool,
+                ..Default::default()
+            },
+        )?)
+    }
+
+    /// Transported amount and indicator of the simulation's current state.
+    pub fn indicator(&self, sim: &mut Simulation) -> (f64, f64) {
+        let task = self.scene.task.as_ref().expect("checked in Problem::new");
+        let m = frame_metrics(&mut sim.world, Some(&task.target));
+        let (target, transported) = match self.target {
+            TargetValue::Particles(n) => (n, m.transported as f64),
+            TargetValue::Grams(g) => (g, m.transported_mass * 1e3),
+        };
+        (transported, target - transported)
+    }
+
+    /// One rollout at Θ (clamped to [−1, 1] by the caller), with the gradient if asked.
+    pub fn evaluate(
+        &self,
+        theta: [f64; 5],
+        with_grad: bool,
+        shared_pool: bool,
+    ) -> anyhow::Result<Outcome> {
+        let t0 = Instant::now();
+        let mut sim = self.simulation(theta, shared_pool)?;
+        let steps = sim.horizon;
+        let substeps = sim.params().substeps;
+        let context = || format!("rollout at Θ = {theta:?}");
+        let (loss, grad) = if with_grad {
+            let g = gradient(&mut sim, steps, &self.loss, Tape::Budget(self.tape_budget))
+                .with_context(context)?;
+            let name = &self.scene.colliders[self.tool].name;
+            let gt = g
+                .skills
+                .iter()
+                .find(|(n, _)| n == name)
+                .map(|(_, g)| *g)
+                .expect("the skill tool has a skill gradient");
+            (g.loss, Some(gt))
+        } else {
+            sim.run(steps, |_| {}).with_context(context)?;
+            let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
+            (self.loss.eval(&xs).0, None)
+        };
+        let (transported, indicator) = self.indicator(&mut sim);
+        Ok(Outcome {
+            loss,
+            indicator,
+            transported,
+            grad,
+            steps,
+            substeps,
+            wall_s: t0.elapsed().as_secs_f64(),
+        })
+    }
+}

@@ -1,0 +1,84 @@
+//! `powderlab optimize` with every method writes metrics.csv (a row per method, seed and
+//! epoch), summary.json, the indicator figure, and a best-rollout recording that the official
+//! Rerun CLI opens, with the loss curves in it.
+#![cfg(feature = "rerun")]
+
+use std::process::Command;
+
+const SCENE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/scenes/tiny_transport.ron"
+);
+
+#[test]
+fn optimize_writes_metrics_summary_figure_and_recording() {
+    let out = std::env::temp_dir().join(format!("powderlab-opt-{}", std::process::id()));
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args([
+            "optimize", SCENE, "--epochs", "2", "--seeds", "1", "--json", "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    for m in ["grad", "cmaes", "sac", "random"] {
+        let s = &summary["methods"][m];
+        assert_eq!(s["rollouts_per_seed"], 2, "{m}: {s}");
+        assert!(s["final_indicator_mean"].as_f64().unwrap().is_finite());
+        assert!(s["final_loss_mean"].as_f64().unwrap().is_finite());
+    }
+    assert_eq!(summary["indicator_unit"], "g");
+    let on_disk: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(on_disk, summary);
+
+    let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    for col in [
+        "method",
+        "seed",
+        "epoch",
+        "loss",
+        "indicator",
+        "theta_d",
+        "theta_p",
+        "grad_norm",
+        "rollouts",
+        "wall_s",
+    ] {
+        assert!(header.contains(&col), "{col} missing from {header:?}");
+    }
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 4 * 2);
+    assert!(rows.iter().all(|r| r.len() == header.len()));
+    let grad_norm = header.iter().position(|c| *c == "grad_norm").unwrap();
+    for r in &rows {
+        // Only the gradient method has a gradient.
+        assert_eq!(r[0] == "grad", !r[grad_norm].is_empty(), "{r:?}");
+    }
+
+    let svg = std::fs::read_to_string(out.join("indicator.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.contains("grad") && svg.contains("random"));
+
+    let rrd = out.join("best.rrd");
+    let stats = Command::new("rerun")
+        .args(["rrd", "stats"])
+        .arg(&rrd)
+        .env("RERUN_ANALYTICS", "0")
+        .output()
+        .expect("the Rerun CLI: pip install rerun-sdk==0.36.3");
+    let text = String::from_utf8_lossy(&stats.stdout).to_string()
+        + &String::from_utf8_lossy(&stats.stderr);
+    assert!(stats.status.success(), "{text}");
+    for entity in [
+        "/world/powder/powder",
+        "/world/tools/spoon",
+        "/metrics/optimize/grad/seed0/loss",
+        "/metrics/optimize/random/seed0/indicator",
+    ] {
+        assert!(text.contains(entity), "{entity} missing from:\n{text}");
+    }
+    std::fs::remove_dir_all(&out).ok();
+}
