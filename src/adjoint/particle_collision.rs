@@ -10,7 +10,7 @@ use crate::adjoint::grid_collision::{
 };
 use crate::components::*;
 use crate::systems::particle_collision::{
-    clear_of, may_reach, project_particle, project_particle_adj, MARGIN_CELLS,
+    clear_of, project_particle, project_particle_adj, Reach, MARGIN_CELLS,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -34,11 +34,11 @@ pub fn particle_collision_adjoint(
 ) {
     let mut cs: Vec<_> = colliders.iter_mut().collect();
     cs.sort_by_key(|c| c.0.index);
-    let view: Vec<(usize, &Collider, &ColliderPose)> = cs
+    let view: Vec<(usize, &Collider, &ColliderPose, Reach)> = cs
         .iter()
         .enumerate()
         .filter(|(_, c)| c.0.particle_contact)
-        .map(|(i, (c, p, _))| (i, *c, *p))
+        .map(|(i, (c, p, _))| (i, *c, *p, Reach::of(c, p)))
         .collect();
     let dt = params.dt_sub;
     let margin = MARGIN_CELLS * grid.dx;
@@ -48,8 +48,8 @@ pub fn particle_collision_adjoint(
             let mut v = input.0[i];
             let mut hits = [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
             let mut count = 0;
-            for &(ci, c, pose) in &view {
-                if !may_reach(c, pose, xp, v, dt, margin) {
+            for &(ci, c, pose, reach) in &view {
+                if !reach.may_reach(xp, v, dt, margin) {
                     continue;
                 }
                 let (phi, n) = pose.sdf(&c.shape, xp);

@@ -154,22 +154,33 @@ pub fn clear_of(phi: f64, margin: f64, dt: f64, v: DVec3, v_body: DVec3) -> bool
     phi - margin > dt * speed
 }
 
-/// Whether a particle at `x` with velocity `v` can reach a collider within a substep: its
-/// bounding sphere grown by the margin and by the substep's relative motion (the particle's and
-/// the collider's fastest point's). A cheap bound before the SDF: outside it `φ` exceeds
-/// what [`clear_of`] needs, so skipping is exact.
-#[inline(always)]
-pub fn may_reach(
-    c: &Collider,
-    pose: &ColliderPose,
-    x: DVec3,
-    v: DVec3,
-    dt: f64,
-    margin: f64,
-) -> bool {
-    let body_speed = pose.linear.length() + pose.angular.length() * c.bounding_radius;
-    let reach = c.bounding_radius + margin + dt * (v.length() + body_speed);
-    (x - pose.pose.translation).length_squared() <= reach * reach
+/// A collider's bounding sphere and the speed of its fastest point, computed once per substep:
+/// the cheap test before the SDF.
+#[derive(Clone, Copy, Debug)]
+pub struct Reach {
+    centre: DVec3,
+    radius: f64,
+    body_speed: f64,
+}
+
+impl Reach {
+    pub fn of(c: &Collider, pose: &ColliderPose) -> Reach {
+        Reach {
+            centre: pose.pose.translation,
+            radius: c.bounding_radius,
+            body_speed: pose.linear.length() + pose.angular.length() * c.bounding_radius,
+        }
+    }
+
+    /// Whether a particle at `x` with velocity `v` can reach the collider within a substep:
+    /// the bounding sphere grown by the margin and by the substep's relative motion (the
+    /// particle's and the collider's fastest point's). Outside it `φ` exceeds what
+    /// [`clear_of`] needs, so skipping is exact.
+    #[inline(always)]
+    pub fn may_reach(&self, x: DVec3, v: DVec3, dt: f64, margin: f64) -> bool {
+        let reach = self.radius + margin + dt * (v.length() + self.body_speed);
+        (x - self.centre).length_squared() <= reach * reach
+    }
 }
 
 pub fn particle_collision(
@@ -178,14 +189,18 @@ pub fn particle_collision(
     colliders: Query<(&Collider, &ColliderPose)>,
     mut bodies: Query<(&Position, &mut Velocity)>,
 ) {
-    let mut cs: Vec<_> = colliders.iter().filter(|c| c.0.particle_contact).collect();
+    let mut cs: Vec<_> = colliders
+        .iter()
+        .filter(|c| c.0.particle_contact)
+        .map(|(c, pose)| (c, pose, Reach::of(c, pose)))
+        .collect();
     cs.sort_by_key(|c| c.0.index);
     let dt = params.dt_sub;
     let margin = MARGIN_CELLS * grid.dx;
     for (x, mut v) in &mut bodies {
         v.0.par_iter_mut().zip(x.0.par_iter()).for_each(|(v, &x)| {
-            for (c, pose) in &cs {
-                if !may_reach(c, pose, x, *v, dt, margin) {
+            for (c, pose, reach) in &cs {
+                if !reach.may_reach(x, *v, dt, margin) {
                     continue;
                 }
                 let (phi, n) = pose.sdf(&c.shape, x);
