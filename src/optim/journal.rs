@@ -8,6 +8,7 @@
 //! replayed from the journal instead of simulated. A kill loses at most the rollouts in flight;
 //! a torn last line (killed mid-write) is dropped on resume.
 
+use super::problem::Outcome;
 use super::Method;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -26,14 +27,9 @@ pub struct Record {
     /// the generation for `cmaes`, the draw for `random`.
     pub batch: usize,
     pub theta: [f64; 5],
-    pub loss: f64,
-    pub indicator: f64,
-    pub transported: f64,
-    pub grad: Option<[f64; 5]>,
-    pub steps: usize,
-    pub substeps: usize,
-    /// Seconds the rollout took (simulation, and the backward pass for `grad`).
-    pub wall_s: f64,
+    /// What the rollout gave (its fields sit flat beside the ones above in the JSON line).
+    #[serde(flatten)]
+    pub outcome: Outcome,
 }
 
 type Key = (Method, usize, usize, [u64; 5]);

@@ -155,8 +155,8 @@ impl Board {
             "{} seed {} epoch {done}: loss {:.4e}, indicator {:.3} {}",
             r.method.name(),
             r.seed,
-            r.loss,
-            r.indicator,
+            r.outcome.loss,
+            r.outcome.indicator,
             self.unit
         ));
         Ok(())
@@ -189,13 +189,7 @@ impl Runner<'_> {
                     seed,
                     batch,
                     theta,
-                    loss: o.loss,
-                    indicator: o.indicator,
-                    transported: o.transported,
-                    grad: o.grad,
-                    steps: o.steps,
-                    substeps: o.substeps,
-                    wall_s: o.wall_s,
+                    outcome: o,
                 };
                 self.journal.append(&r)?;
                 r
@@ -219,7 +213,10 @@ impl Runner<'_> {
                 .map(|(k, st)| self.rollout(Method::Grad, k, epoch - 1, st.theta, true))
                 .collect::<anyhow::Result<_>>()?;
             for (st, r) in states.iter_mut().zip(&recs) {
-                let g = r.grad.context("a grad rollout without its gradient")?;
+                let g = r
+                    .outcome
+                    .grad
+                    .context("a grad rollout without its gradient")?;
                 s.rmsprop.step(st, g, epoch);
             }
         }
@@ -243,7 +240,7 @@ impl Runner<'_> {
             agents
                 .par_iter_mut()
                 .zip(recs.par_iter())
-                .try_for_each(|(a, r)| a.observe(r.theta, r.loss))?;
+                .try_for_each(|(a, r)| a.observe(r.theta, r.outcome.loss))?;
         }
         Ok(())
     }
@@ -288,7 +285,7 @@ impl Runner<'_> {
                         g.0
                     };
                     match self.rollout(Method::Cmaes, k, generation, th, false) {
-                        Ok(r) => r.loss,
+                        Ok(r) => r.outcome.loss,
                         Err(e) => {
                             failure.lock().expect("lock").get_or_insert(e);
                             f64::NAN
@@ -454,31 +451,23 @@ fn record_best(
     let Some(best) = records
         .values()
         .flatten()
-        .min_by(|a, b| a.loss.total_cmp(&b.loss))
+        .min_by(|a, b| a.outcome.loss.total_cmp(&b.outcome.loss))
     else {
         return Ok(());
     };
     let mut sim = problem.simulation(best.theta, false)?;
-    let every = problem.scene.record.as_ref().map_or(2, |r| r.every);
-    let radius = problem
-        .scene
-        .record
-        .as_ref()
-        .and_then(|r| r.point_radius)
-        .unwrap_or(0.25 * problem.scene.simulation.dx);
-    let target = problem.scene.task.as_ref().map(|t| t.target.clone());
-    let mut rec = crate::record::Recorder::create(path, &mut sim.world, every, target, radius)?;
+    let mut rec = crate::record::Recorder::for_scene(path, &mut sim.world, &problem.scene)?;
     for ((m, seed), list) in records {
         let base = format!("optimize/{}/seed{seed}", m.name());
         rec.series(
             &format!("{base}/loss"),
             "epoch",
-            list.iter().map(|r| r.loss),
+            list.iter().map(|r| r.outcome.loss),
         )?;
         rec.series(
             &format!("{base}/indicator"),
             "epoch",
-            list.iter().map(|r| r.indicator),
+            list.iter().map(|r| r.outcome.indicator),
         )?;
     }
     rec.frame(&mut sim.world)?;

@@ -24,7 +24,7 @@ pub struct Problem {
 }
 
 /// What one rollout gives.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Outcome {
     pub loss: f64,
     /// `target − transported`, in the target's unit (particles or grams).
@@ -37,6 +37,7 @@ pub struct Outcome {
     pub steps: usize,
     /// Substeps per step chosen by the stability guard.
     pub substeps: usize,
+    /// Seconds the rollout took (simulation, and the backward pass when asked for).
     pub wall_s: f64,
 }
 

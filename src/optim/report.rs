@@ -43,15 +43,15 @@ pub fn curve(list: &[Record]) -> Vec<Point> {
     list.iter()
         .enumerate()
         .map(|(i, r)| {
-            wall += r.wall_s;
-            if best.is_none_or(|b| r.loss < b.loss) {
+            wall += r.outcome.wall_s;
+            if best.is_none_or(|b| r.outcome.loss < b.outcome.loss) {
                 best = Some(r);
             }
             let b = best.expect("set above");
             Point {
                 epoch: i + 1,
-                best_loss: b.loss,
-                best_indicator: b.indicator,
+                best_loss: b.outcome.loss,
+                best_indicator: b.outcome.indicator,
                 wall_s: wall,
             }
         })
@@ -66,6 +66,7 @@ pub fn metrics_csv(all: &BTreeMap<(Method, usize), Vec<Record>>) -> String {
     for ((m, seed), list) in all {
         for (r, p) in list.iter().zip(curve(list)) {
             let g = r
+                .outcome
                 .grad
                 .map(|g| g.iter().map(|x| x * x).sum::<f64>().sqrt().to_string())
                 .unwrap_or_default();
@@ -76,9 +77,9 @@ pub fn metrics_csv(all: &BTreeMap<(Method, usize), Vec<Record>>) -> String {
                 seed,
                 p.epoch,
                 p.epoch,
-                r.loss,
-                r.indicator,
-                r.transported,
+                r.outcome.loss,
+                r.outcome.indicator,
+                r.outcome.transported,
                 r.theta[0],
                 r.theta[1],
                 r.theta[2],
@@ -128,7 +129,7 @@ pub fn summary(
             .collect();
         let initials: Vec<f64> = per_seed
             .iter()
-            .filter_map(|(_, l)| l.first().map(|r| r.indicator))
+            .filter_map(|(_, l)| l.first().map(|r| r.outcome.indicator))
             .collect();
         let best_losses: Vec<f64> = per_seed
             .iter()
@@ -143,18 +144,18 @@ pub fn summary(
                 let c = curve(l);
                 let best = l
                     .iter()
-                    .min_by(|a, b| a.loss.total_cmp(&b.loss))
+                    .min_by(|a, b| a.outcome.loss.total_cmp(&b.outcome.loss))
                     .expect("non-empty");
                 json!({
                     "seed": k,
                     "theta_init": l.first().map(|r| r.theta),
-                    "initial_indicator": l.first().map(|r| r.indicator),
+                    "initial_indicator": l.first().map(|r| r.outcome.indicator),
                     "final_indicator": c.last().map(|p| p.best_indicator),
                     "final_loss": c.last().map(|p| p.best_loss),
                     "best_theta": best.theta,
                     "rollouts": l.len(),
                     "rollout_wall_s": c.last().map(|p| p.wall_s),
-                    "lowered_indicator": c.last().map(|p| p.best_indicator) < l.first().map(|r| r.indicator),
+                    "lowered_indicator": c.last().map(|p| p.best_indicator) < l.first().map(|r| r.outcome.indicator),
                 })
             })
             .collect();
