@@ -88,51 +88,7 @@ enum Command {
     },
     /// Optimise the skill parameters of the scene's tool (gradient descent, and the baselines
     /// on the same rollout budget); writes metrics.csv, summary.json, indicator.svg, best.rrd.
-    Optimize {
-        scene: PathBuf,
-        /// grad, cmaes, sac, random or all (comma separated).
-        #[arg(long, value_delimiter = ',', default_value = "all")]
-        method: Vec<String>,
-        /// Rollouts per seed and method (the gradient method's epochs).
-        #[arg(long, default_value_t = 30)]
-        epochs: usize,
-        /// Seeds, each with its own Θ_init.
-        #[arg(long, default_value_t = 3)]
-        seeds: usize,
-        /// Run directory (default: runs/<scene name>).
-        #[arg(long)]
-        out: Option<PathBuf>,
-        /// Continue an interrupted run in --out.
-        #[arg(long)]
-        resume: bool,
-        /// Worker threads (default: the scene's setting; 0 = all cores).
-        #[arg(long)]
-        threads: Option<usize>,
-        /// RMSprop learning rate.
-        #[arg(long, default_value_t = 0.05)]
-        lr: f64,
-        /// Last epoch of the curriculum's scoop-only phase (θ_d, θ_s, θ_l).
-        #[arg(long, default_value_t = 15)]
-        curriculum_switch: usize,
-        /// CMA-ES samples per generation.
-        #[arg(long, default_value_t = 6)]
-        cmaes_population: usize,
-        /// CMA-ES initial step size (Θ units).
-        #[arg(long, default_value_t = 0.5)]
-        cmaes_sigma: f64,
-        /// SAC minibatch size.
-        #[arg(long, default_value_t = 8)]
-        sac_batch: usize,
-        /// SAC gradient steps after each rollout.
-        #[arg(long, default_value_t = 20)]
-        sac_updates: usize,
-        /// Memory budget of a backward pass's tape in MB.
-        #[arg(long, default_value_t = 1024)]
-        budget_mb: usize,
-        /// Print the summary as one JSON object.
-        #[arg(long)]
-        json: bool,
-    },
+    Optimize(OptimizeArgs),
     /// Check against exact solutions and published experiments.
     Validate {
         /// free_fall, column_collapse or all.
@@ -210,20 +166,7 @@ fn simulate(
     #[cfg(feature = "rerun")]
     let mut recorder = match &out {
         Some(path) => {
-            let every = sim.scene.record.as_ref().map_or(1, |r| r.every);
-            let radius = sim
-                .scene
-                .record
-                .as_ref()
-                .and_then(|r| r.point_radius)
-                .unwrap_or(0.5 * sim.scene.simulation.dx / 2.0);
-            let mut r = powderlab::record::Recorder::create(
-                path,
-                &mut sim.world,
-                every,
-                target.clone(),
-                radius,
-            )?;
+            let mut r = powderlab::record::Recorder::for_scene(path, &mut sim.world, &sim.scene)?;
             r.frame(&mut sim.world)?;
             Some(r)
         }
@@ -584,37 +527,73 @@ fn gradcheck_cmd(
     Ok(())
 }
 
-/// Hyperparameters of `optimize` from the command line.
+/// `powderlab optimize`'s command line.
+#[derive(clap::Args)]
 struct OptimizeArgs {
+    /// The scene whose tool has a skill control.
+    scene: PathBuf,
+    /// grad, cmaes, sac, random or all (comma separated).
+    #[arg(long, value_delimiter = ',', default_value = "all")]
+    method: Vec<String>,
+    /// Rollouts per seed and method (the gradient method's epochs).
+    #[arg(long, default_value_t = 30)]
+    epochs: usize,
+    /// Seeds, each with its own Θ_init.
+    #[arg(long, default_value_t = 3)]
+    seeds: usize,
+    /// Run directory (default: runs/<scene name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Continue an interrupted run in --out.
+    #[arg(long)]
+    resume: bool,
+    /// Worker threads (default: the scene's setting; 0 = all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// RMSprop learning rate.
+    #[arg(long, default_value_t = 0.05)]
     lr: f64,
+    /// Last epoch of the curriculum's scoop-only phase (θ_d, θ_s, θ_l).
+    #[arg(long, default_value_t = 15)]
     curriculum_switch: usize,
+    /// CMA-ES samples per generation.
+    #[arg(long, default_value_t = 6)]
     cmaes_population: usize,
+    /// CMA-ES initial step size (Θ units).
+    #[arg(long, default_value_t = 0.5)]
     cmaes_sigma: f64,
+    /// SAC minibatch size.
+    #[arg(long, default_value_t = 8)]
     sac_batch: usize,
+    /// SAC gradient steps after each rollout.
+    #[arg(long, default_value_t = 20)]
     sac_updates: usize,
+    /// Memory budget of a backward pass's tape in MB.
+    #[arg(long, default_value_t = 1024)]
+    budget_mb: usize,
+    /// Print the summary as one JSON object.
+    #[arg(long)]
+    json: bool,
 }
 
-#[allow(clippy::too_many_arguments)]
-fn optimize_cmd(
-    scene: PathBuf,
-    method: Vec<String>,
-    epochs: usize,
-    seeds: usize,
-    out: Option<PathBuf>,
-    resume: bool,
-    threads: Option<usize>,
-    hp: OptimizeArgs,
-    budget_mb: usize,
-    json_out: bool,
-) -> Result<()> {
+fn optimize_cmd(args: OptimizeArgs) -> Result<()> {
     let OptimizeArgs {
+        scene,
+        method,
+        epochs,
+        seeds,
+        out,
+        resume,
+        threads,
         lr,
         curriculum_switch,
         cmaes_population,
         cmaes_sigma,
         sac_batch,
         sac_updates,
-    } = hp;
+        budget_mb,
+        json: json_out,
+    } = args;
     use powderlab::optim::{self, Method};
     let mut methods = Vec::new();
     for m in &method {
@@ -766,41 +745,7 @@ fn main() {
                 bench(scene, steps, threads, stages, json)
             }
         }
-        Command::Optimize {
-            scene,
-            method,
-            epochs,
-            seeds,
-            out,
-            resume,
-            threads,
-            lr,
-            curriculum_switch,
-            cmaes_population,
-            cmaes_sigma,
-            sac_batch,
-            sac_updates,
-            budget_mb,
-            json,
-        } => optimize_cmd(
-            scene,
-            method,
-            epochs,
-            seeds,
-            out,
-            resume,
-            threads,
-            OptimizeArgs {
-                lr,
-                curriculum_switch,
-                cmaes_population,
-                cmaes_sigma,
-                sac_batch,
-                sac_updates,
-            },
-            budget_mb,
-            json,
-        ),
+        Command::Optimize(args) => optimize_cmd(args),
         Command::Validate {
             case,
             cells,

@@ -54,6 +54,25 @@ pub fn speed_colour(speed: f64, v_ref: f64) -> [u8; 4] {
 }
 
 impl Recorder {
+    /// Opens `path` for recording a simulation of `scene` with the scene's recording options
+    /// (`record`: every 1 step and a point radius of half the particle spacing at 8 particles
+    /// per cell, 0.25·dx, unless it says otherwise), its task's target cup highlighted.
+    pub fn for_scene(
+        path: &Path,
+        world: &mut World,
+        scene: &crate::scene::Scene,
+    ) -> anyhow::Result<Recorder> {
+        let spec = scene.record.as_ref();
+        Recorder::create(
+            path,
+            world,
+            spec.map_or(1, |r| r.every),
+            scene.task.as_ref().map(|t| t.target.clone()),
+            spec.and_then(|r| r.point_radius)
+                .unwrap_or(0.25 * scene.simulation.dx),
+        )
+    }
+
     /// Opens `path` for recording and logs the static collider meshes.
     pub fn create(
         path: &Path,
