@@ -5,6 +5,8 @@
 
 use std::process::Command;
 
+mod common;
+
 const SCENE: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
     "/tests/scenes/tiny_transport.ron"
@@ -62,23 +64,14 @@ fn optimize_writes_metrics_summary_figure_and_recording() {
     let svg = std::fs::read_to_string(out.join("indicator.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("grad") && svg.contains("random"));
 
-    let rrd = out.join("best.rrd");
-    let stats = Command::new("rerun")
-        .args(["rrd", "stats"])
-        .arg(&rrd)
-        .env("RERUN_ANALYTICS", "0")
-        .output()
-        .expect("the Rerun CLI: pip install rerun-sdk==0.36.3");
-    let text = String::from_utf8_lossy(&stats.stdout).to_string()
-        + &String::from_utf8_lossy(&stats.stderr);
-    assert!(stats.status.success(), "{text}");
-    for entity in [
-        "/world/powder/powder",
-        "/world/tools/spoon",
-        "/metrics/optimize/grad/seed0/loss",
-        "/metrics/optimize/random/seed0/indicator",
-    ] {
-        assert!(text.contains(entity), "{entity} missing from:\n{text}");
-    }
+    common::assert_rrd_has(
+        &out.join("best.rrd"),
+        &[
+            "/world/powder/powder",
+            "/world/tools/spoon",
+            "/metrics/optimize/grad/seed0/loss",
+            "/metrics/optimize/random/seed0/indicator",
+        ],
+    );
     std::fs::remove_dir_all(&out).ok();
 }

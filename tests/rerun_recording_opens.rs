@@ -4,6 +4,8 @@
 
 use std::process::Command;
 
+mod common;
+
 #[test]
 fn recording_opens_in_rerun_and_has_the_entities() {
     let dir = std::env::temp_dir().join(format!("powderlab-rrd-{}", std::process::id()));
@@ -21,33 +23,17 @@ fn recording_opens_in_rerun_and_has_the_entities() {
         "the recording is renamed into place when finished"
     );
     assert!(!dir.join("pt.rrd.partial").exists());
-    let stats = Command::new("rerun")
-        .args(["rrd", "stats"])
-        .arg(&out)
-        .env("RERUN_ANALYTICS", "0")
-        .output();
-    let stats = match stats {
-        Ok(o) => o,
-        Err(e) => {
-            panic!("the Rerun CLI is needed for this test: pip install rerun-sdk==0.36.3 ({e})")
-        }
-    };
-    let text = String::from_utf8_lossy(&stats.stdout).to_string()
-        + &String::from_utf8_lossy(&stats.stderr);
-    assert!(stats.status.success(), "rerun rrd stats failed: {text}");
-    for entity in [
-        "/world/powder/powder",
-        "/world/tools/spoon",
-        "/world/containers/source_cup",
-        "/world/containers/target_cup",
-        "/metrics/transported_particles",
-        "/metrics/mean_height",
-    ] {
-        assert!(
-            text.contains(entity),
-            "entity {entity} missing from:\n{text}"
-        );
-    }
+    common::assert_rrd_has(
+        &out,
+        &[
+            "/world/powder/powder",
+            "/world/tools/spoon",
+            "/world/containers/source_cup",
+            "/world/containers/target_cup",
+            "/metrics/transported_particles",
+            "/metrics/mean_height",
+        ],
+    );
     let verify = Command::new("rerun")
         .args(["rrd", "verify"])
         .arg(&out)

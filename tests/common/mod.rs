@@ -52,3 +52,25 @@ pub fn load_test_scene(name: &str) -> Scene {
         .join(name);
     Scene::load(p).unwrap_or_else(|e| panic!("{e}"))
 }
+
+/// Opens `rrd` with the official Rerun CLI (`rerun rrd stats`, PyPI rerun-sdk==0.36.3) and
+/// asserts that it reads and holds every one of `entities`.
+pub fn assert_rrd_has(rrd: &Path, entities: &[&str]) {
+    let stats = std::process::Command::new("rerun")
+        .args(["rrd", "stats"])
+        .arg(rrd)
+        .env("RERUN_ANALYTICS", "0")
+        .output()
+        .unwrap_or_else(|e| {
+            panic!("the Rerun CLI is needed for this test: pip install rerun-sdk==0.36.3 ({e})")
+        });
+    let text = String::from_utf8_lossy(&stats.stdout).to_string()
+        + &String::from_utf8_lossy(&stats.stderr);
+    assert!(stats.status.success(), "rerun rrd stats failed: {text}");
+    for entity in entities {
+        assert!(
+            text.contains(entity),
+            "entity {entity} missing from:\n{text}"
+        );
+    }
+}
