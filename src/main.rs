@@ -595,14 +595,20 @@ fn optimize_cmd(args: OptimizeArgs) -> Result<()> {
         json: json_out,
     } = args;
     use powderlab::optim::{self, Method};
-    let mut methods = Vec::new();
+    // Each method once, in the order first named (`--method grad,all` runs grad once).
+    let mut methods: Vec<Method> = Vec::new();
     for m in &method {
         match Method::parse_list(m) {
-            Some(ms) => methods.extend(ms),
+            Some(ms) => {
+                for m in ms {
+                    if !methods.contains(&m) {
+                        methods.push(m);
+                    }
+                }
+            }
             None => bail!("--method {m}: expected grad, cmaes, sac, random or all"),
         }
     }
-    methods.dedup();
     if !(lr > 0.0 && lr.is_finite()) {
         bail!("--lr {lr}: expected a positive learning rate");
     }
