@@ -41,7 +41,7 @@ pub fn g2p_adjoint(
         // x̄: a gather over the final grid velocity.
         gx.0.par_iter_mut().enumerate().for_each(|(i, gx)| {
             let xp = start.x[i];
-            let st = stencil((xp - grid.origin) * inv_dx);
+            let st = stencil((xp - grid.origin) / dx);
             let dw = st.derivs();
             let [bi, bj, bk] = st.base;
             let (g_v, g_c) = (gv.0[i], gc.0[i]);
@@ -72,7 +72,7 @@ pub fn g2p_adjoint(
             );
             for &p in &order.order[s..e] {
                 let p = p as usize;
-                let st = stencil((start.x[p] - grid.origin) * inv_dx);
+                let st = stencil((start.x[p] - grid.origin) / dx);
                 let [bi, bj, bk] = st.base;
                 let (g_v, g_c) = (gv.0[p], gc.0[p]);
                 for ia in 0..3 {

@@ -56,7 +56,7 @@ pub fn p2g_adjoint(
                 let xp = start.x[i];
                 let mv = start.v[i] * m;
                 let a = aff.0[i];
-                let st = stencil((xp - grid.origin) * inv_dx);
+                let st = stencil((xp - grid.origin) / dx);
                 let dw = st.derivs();
                 let [bi, bj, bk] = st.base;
                 let (mut sv, mut sa, mut sx) = (DVec3::ZERO, DMat3::ZERO, DVec3::ZERO);

@@ -33,11 +33,11 @@ pub fn bin_by_slab(grid: &Grid, x: &[DVec3], out: &mut ScatterOrder) {
     out.order.resize(x.len(), 0);
     out.slab_start.clear();
     out.slab_start.resize(n_slabs + 1, 0);
-    let inv_dx = 1.0 / grid.dx;
-    let slab_of = |p: &DVec3| -> usize {
-        let b = ((p.x - grid.origin.x) * inv_dx - 0.5).floor() as usize;
-        b / SLAB
-    };
+    // The slab of a particle is that of its stencil's base node, computed exactly as `stencil`
+    // does ((x − origin)/dx − ½, floored): multiplying by 1/dx instead can round a particle
+    // sitting on a half-cell boundary to the other side, and the scatter would then index the
+    // plane before its slab's chunk.
+    let slab_of = |p: &DVec3| -> usize { stencil((*p - grid.origin) / grid.dx).base[0] / SLAB };
     for p in x {
         out.counts[slab_of(p)] += 1;
     }
@@ -159,5 +159,38 @@ pub fn p2g(
             index: i,
             value: format!("{:?}", g.velocity[i]),
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Particles on a half-cell boundary, where `x·(1/dx)` and `x/dx` round apart: each is binned
+    /// into the slab of its own stencil base (a mismatch made the scatter index out of bounds).
+    #[test]
+    fn binning_agrees_with_the_stencil_on_half_cell_boundaries() {
+        let dx = 0.0025;
+        let grid = Grid::new(DVec3::ZERO, dx, [64, 8, 8]);
+        let mut disagreements = 0;
+        for k in 2..60 {
+            let mut x = (k as f64 + 0.5) * dx;
+            for _ in 0..64 {
+                x = f64::from_bits(x.to_bits() - 1);
+                let mul = (x * (1.0 / dx) - 0.5).floor() as usize;
+                let base = stencil(DVec3::new(x, 0.01, 0.01) / dx).base[0];
+                disagreements += usize::from(mul != base);
+                let mut order = ScatterOrder::default();
+                bin_by_slab(&grid, &[DVec3::new(x, 0.01, 0.01)], &mut order);
+                let slab = base / SLAB;
+                assert_eq!(
+                    order.slab_start[slab + 1] - order.slab_start[slab],
+                    1,
+                    "x = {x:e}"
+                );
+            }
+        }
+        // The test exercises the case it is about.
+        assert!(disagreements > 0);
     }
 }
