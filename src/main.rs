@@ -178,8 +178,11 @@ fn simulate(
     }
     let pb = bar(steps as u64, false);
     let start = Instant::now();
+    let mut energy = powderlab::metrics::EnergyMonitor::default();
+    energy.observe(&frame_metrics(&mut sim.world, None));
     for _ in 0..steps {
         sim.step()?;
+        energy.observe(&frame_metrics(&mut sim.world, None));
         #[cfg(feature = "rerun")]
         if let Some(r) = recorder.as_mut() {
             r.frame(&mut sim.world)?;
@@ -207,6 +210,7 @@ fn simulate(
             m.transported
         ))
     );
+    report_energy(&energy, &sim.scene);
     if let Some(p) = &out {
         eprintln!("recording: {}", p.display());
     }
@@ -214,6 +218,27 @@ fn simulate(
         eprintln!("state: {}", p.display());
     }
     Ok(())
+}
+
+/// Prints the energy budget of a run and flags a spurious gain.
+fn report_energy(e: &powderlab::metrics::EnergyMonitor, scene: &powderlab::scene::Scene) {
+    let driven = scene.colliders.iter().any(|c| c.control.is_some());
+    let verdict = if driven {
+        "a driven tool does work on the powder, so a gain is not flagged"
+    } else if e.spurious_gain() {
+        "SPURIOUS ENERGY GAIN: the total rose above its lowest value by more than 10 % of the energy in play; reduce dt or raise substeps"
+    } else {
+        "no spurious gain"
+    };
+    eprintln!(
+        "energy (kinetic + gravitational + elastic): {:.6e} J -> {:.6e} J; largest rise {:.3e} J at step {} ({:.3} % of the {:.3e} J in play): {verdict}",
+        e.initial.unwrap_or(0.0),
+        e.last,
+        e.largest_gain,
+        e.largest_gain_frame,
+        100.0 * e.gain_fraction(),
+        e.scale
+    );
 }
 
 fn bench_backward(

@@ -5,7 +5,7 @@
 //! - `world/tools/<name>`, `world/containers/<name>`: a static `Mesh3D` plus a `Transform3D`
 //!   per recorded frame;
 //! - `metrics/transported_particles`, `metrics/mean_height`, `metrics/kinetic_energy`,
-//!   `metrics/gravitational_energy`: `Scalars`;
+//!   `metrics/gravitational_energy`, `metrics/elastic_energy`, `metrics/total_energy`: `Scalars`;
 //! - whole curves such as an optimisation's loss per epoch ([`Recorder::series`]).
 //!
 //! Timelines: `step` (sequence) and `sim_time` (duration). The file is written to
@@ -166,6 +166,10 @@ impl Recorder {
             "metrics/gravitational_energy",
             &Scalars::single(m.gravitational_energy),
         )?;
+        self.rec
+            .log("metrics/elastic_energy", &Scalars::single(m.elastic_energy))?;
+        self.rec
+            .log("metrics/total_energy", &Scalars::single(m.total_energy()))?;
         Ok(())
     }
 

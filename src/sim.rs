@@ -285,6 +285,7 @@ impl Simulation {
                     index: i,
                     particle_mass: mass,
                     particle_volume: volume,
+                    lame: (mu, lambda),
                 },
                 Position(x),
                 Velocity(vec![v0; np]),

@@ -103,6 +103,7 @@ fn world(rng: &mut Rng) -> (World, Entity) {
                 index: 0,
                 particle_mass: 1.5e-3,
                 particle_volume: 1e-6,
+                lame: (0.0, 0.0),
             },
             Position(x.clone()),
             Velocity(rng.vs(N)),

@@ -101,6 +101,7 @@ fn p2g_conserves_mass_and_momentum() {
             index: 0,
             particle_mass: m,
             particle_volume: 1e-6,
+            lame: (0.0, 0.0),
         },
         Position(x),
         Velocity(v.clone()),

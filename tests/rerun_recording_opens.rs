@@ -32,6 +32,10 @@ fn recording_opens_in_rerun_and_has_the_entities() {
             "/world/containers/target_cup",
             "/metrics/transported_particles",
             "/metrics/mean_height",
+            "/metrics/kinetic_energy",
+            "/metrics/gravitational_energy",
+            "/metrics/elastic_energy",
+            "/metrics/total_energy",
         ],
     );
     let verify = Command::new("rerun")

@@ -13,6 +13,8 @@ pub struct Body {
     pub particle_mass: f64,
     /// Initial volume of one particle (m³).
     pub particle_volume: f64,
+    /// Lamé parameters (μ, λ) of the body's material (Pa), for the elastic energy.
+    pub lame: (f64, f64),
 }
 
 /// Particle positions `x` (m). State.

@@ -50,6 +50,15 @@ pub fn kirchhoff_principal(eps: DVec3, mu: f64, lambda: f64) -> DVec3 {
     2.0 * mu * eps + DVec3::splat(lambda * (eps.x + eps.y + eps.z))
 }
 
+/// Stored energy density per reference volume of StVK in Hencky strain,
+/// `ψ = μ·‖ε‖² + ½λ·(tr ε)²`, whose derivative in `ε` is [`kirchhoff_principal`]. A diagnostic
+/// (energy budgets, the vibrating bar), not differentiated.
+#[inline(always)]
+pub fn hencky_energy(eps: DVec3, mu: f64, lambda: f64) -> f64 {
+    let tr = eps.x + eps.y + eps.z;
+    mu * eps.length_squared() + 0.5 * lambda * tr * tr
+}
+
 /// Which branch of the return mapping applied (a kink in the map, see the adjoint docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DpCase {
@@ -192,6 +201,20 @@ pub fn dp_project_adj(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hencky_energy_is_the_potential_of_the_kirchhoff_stress() {
+        let (mu, lambda) = lame(3.5e5, 0.3);
+        let eps = DVec3::new(-0.021, 0.013, 0.004);
+        let tau = kirchhoff_principal(eps, mu, lambda);
+        for k in 0..3 {
+            let mut e = DVec3::ZERO;
+            e[k] = FD_EPS;
+            let fd = (hencky_energy(eps + e, mu, lambda) - hencky_energy(eps - e, mu, lambda))
+                / (2.0 * e[k]);
+            close(fd, tau[k], "dψ/dε");
+        }
+    }
 
     /// Central-difference step and the required agreement, f64, away from kinks.
     const FD_EPS: f64 = 1e-6;
