@@ -91,7 +91,8 @@ enum Command {
     Optimize(OptimizeArgs),
     /// Check against exact solutions and published experiments.
     Validate {
-        /// free_fall, column_collapse or all.
+        /// free_fall, bar, self_weight, incline, column_collapse, stability, or all (every
+        /// case but stability, which has its own table).
         #[arg(default_value = "all")]
         case: String,
         /// Grid cells across the collapsing column (at least 20 for the published check).
@@ -418,12 +419,49 @@ fn validate_cmd(
     report: Option<PathBuf>,
 ) -> Result<()> {
     let mut checks = Vec::new();
-    let known = ["all", "free_fall", "column_collapse"];
+    let known = [
+        "all",
+        "free_fall",
+        "bar",
+        "self_weight",
+        "incline",
+        "column_collapse",
+        "stability",
+    ];
     if !known.contains(&case.as_str()) {
         bail!("unknown validation case '{case}': expected one of {known:?}");
     }
-    if case == "all" || case == "free_fall" {
+    if case == "stability" {
+        return stability_cmd(threads, json_out, report);
+    }
+    let wants = |c: &str| case == "all" || case == c;
+    if wants("free_fall") {
         checks.extend(validate::free_fall(threads)?);
+    }
+    if wants("bar") {
+        for n in [16, 32, 64] {
+            let r = validate::bar::run_bar(&validate::bar::Bar::new(n), threads)?;
+            checks.extend(validate::bar::bar_checks(&r));
+        }
+    }
+    if wants("self_weight") {
+        for ppc in [1, 8] {
+            let mut rs = Vec::new();
+            for n in [8, 16, 32] {
+                rs.push(validate::column::run_column(
+                    &validate::column::Column::new(n, ppc),
+                    threads,
+                )?);
+            }
+            checks.extend(validate::column::column_checks(&rs));
+        }
+    }
+    if wants("incline") {
+        for ratio in [0.95, 1.05] {
+            let r =
+                validate::incline::run_incline(&validate::incline::Incline::new(ratio), threads)?;
+            checks.extend(validate::incline::incline_checks(&r));
+        }
     }
     if case == "all" || case == "column_collapse" {
         if cells < 4 {
@@ -473,6 +511,35 @@ fn validate_cmd(
         }
     }
     if !passed {
+        std::process::exit(1);
+    }
+    Ok(())
+}
+
+/// `validate stability`: every case of the suite, as a Markdown table (and JSON).
+fn stability_cmd(threads: Option<usize>, json_out: bool, report: Option<PathBuf>) -> Result<()> {
+    use validate::stability::{cases, markdown, run_case};
+    let cases = cases();
+    let pb = bar(cases.len() as u64, json_out);
+    let mut results = Vec::new();
+    for c in &cases {
+        pb.set_message(c.name.clone());
+        results.push(run_case(c, threads));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let passed = results.iter().all(|r| r.outcome.acceptable());
+    let obj = json!({ "passed": passed, "stability": results });
+    if let Some(p) = &report {
+        write_atomic(p, serde_json::to_string_pretty(&obj)?.as_bytes())?;
+    }
+    if json_out {
+        println!("{obj}");
+    } else {
+        print!("{}", markdown(&results));
+    }
+    if !passed {
+        eprintln!("a case ended unstable or non-finite (see the table)");
         std::process::exit(1);
     }
     Ok(())

@@ -498,9 +498,19 @@ impl Simulation {
 
     /// One global step: `N_sub` substeps.
     pub fn step(&mut self) -> Result<(), SimError> {
+        self.step_with(|_, _| {})
+    }
+
+    /// One global step that calls `before(world, t)` before each substep, with `t` the simulated
+    /// time at the substep's start: for loads that vary in time, such as a gravity ramp in the
+    /// validation cases.
+    pub fn step_with(&mut self, mut before: impl FnMut(&mut World, f64)) -> Result<(), SimError> {
         let n = self.params().substeps;
+        let (dt, dt_sub) = (self.params().dt, self.params().dt_sub);
         self.world.resource_mut::<Clock>().substep = 0;
-        for _ in 0..n {
+        let t0 = self.clock().step as f64 * dt;
+        for k in 0..n {
+            before(&mut self.world, t0 + k as f64 * dt_sub);
             self.substep()?;
         }
         let mut clock = self.world.resource_mut::<Clock>();

@@ -4,7 +4,16 @@
 //! - `free_fall`: exact, `x = x₀ + v₀t + ½g·t(t + Δt_sub)` and `v = v₀ + g·t` (symplectic Euler);
 //! - `column_collapse`: planar granular column collapse, run-out against Lube et al. 2005
 //!   (`ΔL/L₀ ≈ 1.2a` for small `a`, `≈ 1.9a^(2/3)` for large `a`), log–log slopes per band,
-//!   and the arrest time in units of `T_c = √(H₀/g)`.
+//!   and the arrest time in units of `T_c = √(H₀/g)`;
+//! - `bar`: the fixed–free vibrating elastic bar (period and energy drift), [`bar`];
+//! - `self_weight`: the self-weight column (base stress and its convergence order), [`column`];
+//! - `incline`: a block on an incline below and above its friction angle, [`incline`];
+//! - `stability`: stiff and extreme cases, each stable or refused, never NaN, [`stability`].
+
+pub mod bar;
+pub mod column;
+pub mod incline;
+pub mod stability;
 
 use crate::scene::Scene;
 use crate::sim::{SimOptions, Simulation};
@@ -26,7 +35,83 @@ pub struct Check {
     pub note: String,
 }
 
-fn parse(src: &str, name: &str) -> anyhow::Result<Scene> {
+impl Check {
+    /// A check of `measured` against `published` with a relative tolerance.
+    pub fn relative(
+        case: &str,
+        quantity: String,
+        measured: f64,
+        published: f64,
+        tol: f64,
+    ) -> Check {
+        let rel = (measured - published).abs() / published.abs();
+        Check {
+            case: case.into(),
+            quantity,
+            measured,
+            published,
+            tolerance: tol,
+            kind: "rel<=tol",
+            passed: rel <= tol,
+            note: format!("relative error {rel:.2e}"),
+        }
+    }
+
+    /// A check that `measured` is at most `bound`.
+    pub fn at_most(
+        case: &str,
+        quantity: String,
+        measured: f64,
+        published: f64,
+        bound: f64,
+    ) -> Check {
+        Check {
+            case: case.into(),
+            quantity,
+            measured,
+            published,
+            tolerance: bound,
+            kind: "abs<=tol",
+            passed: measured.abs() <= bound,
+            note: String::new(),
+        }
+    }
+
+    pub fn with_note(mut self, note: String) -> Check {
+        self.note = if self.note.is_empty() {
+            note
+        } else {
+            format!("{}; {note}", self.note)
+        };
+        self
+    }
+}
+
+/// A C¹ ramp from 0 at `t = 0` to 1 at `t = t_ramp`: `½(1 − cos(πt/t_ramp))`. Loading a body this
+/// slowly (over several of its elastic periods) brings it to rest with little ringing, where a
+/// sudden load would leave it ringing about the rest state with the full static amplitude.
+pub fn smooth_ramp(t: f64, t_ramp: f64) -> f64 {
+    if t >= t_ramp {
+        1.0
+    } else {
+        0.5 * (1.0 - (std::f64::consts::PI * t / t_ramp).cos())
+    }
+}
+
+/// Sets every particle's velocity from its position.
+pub fn set_velocity(sim: &mut Simulation, f: impl Fn(DVec3) -> DVec3) {
+    let mut q = sim.world.query::<(
+        &crate::components::Position,
+        &mut crate::components::Velocity,
+    )>();
+    for (x, mut v) in q.iter_mut(&mut sim.world) {
+        for (x, v) in x.0.iter().zip(v.0.iter_mut()) {
+            *v = f(*x);
+        }
+    }
+}
+
+pub(crate) fn parse(src: &str, name: &str) -> anyhow::Result<Scene> {
     Ok(Scene::parse(src, Path::new(&format!("<validate:{name}>")))?)
 }
 
