@@ -483,6 +483,7 @@ fn validate_cmd(
             }
             checks.extend(validate::collapse_checks(band, &rs, slope, tol));
         }
+        checks.push(validate::scale_invariance(1.0, cells, threads)?);
     }
     let passed = checks.iter().all(|c| c.passed);
     let obj = json!({ "passed": passed, "checks": checks });

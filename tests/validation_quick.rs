@@ -1,8 +1,9 @@
 //! The quick subset of `powderlab validate` (the whole set is `powderlab validate`, minutes):
 //! the fixed–free bar's period, the block on an incline below and above its friction angle,
-//! and the self-weight column at one particle per cell.
+//! the self-weight column at one particle per cell, and the scale invariance of a column
+//! collapse.
 
-use powderlab::validate::{bar, column, incline};
+use powderlab::validate::{bar, column, incline, scale_invariance};
 
 #[test]
 fn vibrating_bar_period_within_one_percent() {
@@ -41,4 +42,11 @@ fn self_weight_column_base_stress() {
     let r = column::run_column(&column::Column::new(8, 1), Some(2)).unwrap();
     println!("{r:?}");
     assert!(r.error <= SELF_WEIGHT_ONE_PPC_TOL, "{r:?}");
+}
+
+#[test]
+fn a_column_scaled_twice_leaves_the_same_normalised_deposit() {
+    let c = scale_invariance(0.5, 10, Some(2)).unwrap();
+    println!("{c:?}");
+    assert!(c.passed, "{c:?}");
 }

@@ -4,7 +4,8 @@
 //! - `free_fall`: exact, `x = x₀ + v₀t + ½g·t(t + Δt_sub)` and `v = v₀ + g·t` (symplectic Euler);
 //! - `column_collapse`: planar granular column collapse, run-out against Lube et al. 2005
 //!   (`ΔL/L₀ ≈ 1.2a` for small `a`, `≈ 1.9a^(2/3)` for large `a`), log–log slopes per band,
-//!   and the arrest time in units of `T_c = √(H₀/g)`;
+//!   the arrest time in units of `T_c = √(H₀/g)`, and the scale invariance of the deposit
+//!   ([`scale_invariance`]);
 //! - `bar`: the fixed–free vibrating elastic bar (period and energy drift), [`bar`];
 //! - `self_weight`: the self-weight column (base stress and its convergence order), [`column`];
 //! - `incline`: a block on an incline below and above its friction angle, [`incline`];
@@ -423,4 +424,53 @@ pub fn collapse_checks(
         }
     }
     out
+}
+
+/// Tolerance of the scale-invariance check: the RMS distance between the normalised deposits,
+/// over H₀/L₀ (granular.md: "the same normalised deposit to within 1–2 %").
+pub const SCALE_INVARIANCE_TOL: f64 = 0.01;
+
+/// Drucker–Prager has no internal length: a column scaled 2× with E/(ρgH₀) held fixed must
+/// leave the same deposit in units of L₀. Both runs use the same lattice (the grid scales with
+/// the column), so particle k of one is particle k of the other; the check is the RMS distance
+/// between their final positions over L₀, as a fraction of the column height H₀/L₀.
+pub fn scale_invariance(
+    aspect: f64,
+    cells: usize,
+    threads: Option<usize>,
+) -> anyhow::Result<Check> {
+    let mut runs = Vec::new();
+    for length in [0.05, 0.1] {
+        let mut c = Collapse::new(aspect, cells);
+        c.length = length;
+        runs.push(run_collapse(&c, threads, |_| {})?);
+    }
+    let (a, b) = (&runs[0].deposit, &runs[1].deposit);
+    anyhow::ensure!(
+        a.len() == b.len(),
+        "the two columns have different lattices"
+    );
+    let rms = (a
+        .iter()
+        .zip(b)
+        .map(|(p, q)| (*p - *q).length_squared())
+        .sum::<f64>()
+        / a.len() as f64)
+        .sqrt()
+        / aspect;
+    Ok(Check {
+        case: "column_collapse".into(),
+        quantity: format!("scale invariance at a = {aspect}: RMS deposit difference / H0"),
+        measured: rms,
+        published: 0.0,
+        tolerance: SCALE_INVARIANCE_TOL,
+        kind: "abs<=tol",
+        passed: rms <= SCALE_INVARIANCE_TOL,
+        note: format!(
+            "L0 = 5 and 10 cm, {cells} cells across, {} particles; run-outs {:.4} and {:.4}",
+            a.len(),
+            runs[0].runout_ratio,
+            runs[1].runout_ratio
+        ),
+    })
 }
