@@ -16,9 +16,9 @@
 //! correction to the period is `½ν²k²r²` ≈ 1e-4 here (k = π/2L, r² = a²/6 of the square
 //! section of side a = 2dx), far below the 1 % tolerance.
 
-use super::{parse, set_velocity, Check};
+use super::{build, set_velocity, Check};
 use crate::metrics::frame_metrics;
-use crate::sim::{SimOptions, Simulation};
+use crate::sim::Simulation;
 use glam::DVec3;
 use serde::Serialize;
 
@@ -119,14 +119,7 @@ pub fn zero_crossings(t: &[f64], u: &[f64]) -> Vec<f64> {
 /// Runs the bar for `b.periods` periods.
 pub fn run_bar(b: &Bar, threads: Option<usize>) -> anyhow::Result<BarResult> {
     let start = std::time::Instant::now();
-    let scene = parse(&bar_scene(b), &format!("bar_{}", b.cells))?;
-    let mut sim = Simulation::new(
-        &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
-    )?;
+    let (scene, mut sim) = build(&bar_scene(b), &format!("bar_{}", b.cells), threads)?;
     let dx = scene.simulation.dx;
     let x_fixed = 2.0 * dx;
     let c = (b.youngs / b.density).sqrt();

@@ -14,11 +14,10 @@
 //! is that average against the exact value at the layer, over `ρ₀gH`. Three resolutions give
 //! the observed convergence order.
 
-use super::{parse, smooth_ramp, Check};
+use super::{build, smooth_ramp, Check};
 use crate::components::{Body, DeformationGradient, SimParams};
 use crate::math::return_map::{hencky, kirchhoff_principal};
 use crate::math::svd::svd3;
-use crate::sim::{SimOptions, Simulation};
 use bevy_ecs::world::World;
 use glam::DVec3;
 use serde::Serialize;
@@ -59,6 +58,11 @@ impl Column {
         let (mu, lambda) = crate::math::return_map::lame(self.youngs, self.poisson);
         ((lambda + 2.0 * mu) / self.density).sqrt()
     }
+
+    /// Period of the fundamental mode of the fixed–free column, `T₁ = 4H/c`.
+    pub fn period(&self) -> f64 {
+        4.0 * self.height / self.wave_speed()
+    }
 }
 
 /// Outcome of one column.
@@ -90,8 +94,7 @@ pub fn column_scene(c: &Column) -> String {
     let n_lat = width + 5;
     let ny = c.cells + 9;
     let lo = 2.0 * dx;
-    let period = 4.0 * c.height / c.wave_speed();
-    let dt = period / 8.0;
+    let dt = c.period() / 8.0;
     // Stable substeps at CFL 0.5, fixed here so that a step is exactly T₁/8.
     let substeps = (dt / (0.5 * dx / c.wave_speed())).ceil() as usize;
     format!(
@@ -128,13 +131,10 @@ pub fn cauchy_yy(f: glam::DMat3, mu: f64, lambda: f64) -> f64 {
 /// Runs one column and averages the base stress over whole periods.
 pub fn run_column(c: &Column, threads: Option<usize>) -> anyhow::Result<ColumnResult> {
     let start = std::time::Instant::now();
-    let scene = parse(&column_scene(c), &format!("self_weight_{}", c.cells))?;
-    let mut sim = Simulation::new(
-        &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+    let (scene, mut sim) = build(
+        &column_scene(c),
+        &format!("self_weight_{}", c.cells),
+        threads,
     )?;
     let dx = scene.simulation.dx;
     let floor = 2.0 * dx;
@@ -144,8 +144,7 @@ pub fn run_column(c: &Column, threads: Option<usize>) -> anyhow::Result<ColumnRe
     let h = dx / (c.particles_per_cell as f64).cbrt().round();
     let layer_of: Vec<usize> = y0.iter().map(|y| (y / h).floor() as usize).collect();
     let layers = layer_of.iter().max().map_or(0, |m| m + 1);
-    let period = 4.0 * c.height / c.wave_speed();
-    let t_ramp = c.periods as f64 * period;
+    let t_ramp = c.periods as f64 * c.period();
     let steps = 16 * c.periods;
     let mut sum = vec![0.0; y0.len()];
     let mut samples = 0usize;

@@ -9,9 +9,9 @@
 //! 0.1 s after the ramp, is within 5 % of the law. At 1.05μ the law's acceleration is only 5 % of the
 //! friction deceleration, so a 5 % error in it is a 0.25 % error in the friction force.
 
-use super::{parse, smooth_ramp, Check};
+use super::{build, smooth_ramp, Check};
 use crate::components::SimParams;
-use crate::sim::{SimOptions, Simulation};
+use crate::sim::Simulation;
 use serde::Serialize;
 
 /// Gravity is ramped in over this time (s) with [`smooth_ramp`], about 60 periods of the block's
@@ -116,14 +116,7 @@ pub fn fit_acceleration(t: &[f64], s: &[f64]) -> f64 {
 
 pub fn run_incline(c: &Incline, threads: Option<usize>) -> anyhow::Result<InclineResult> {
     let start = std::time::Instant::now();
-    let scene = parse(&incline_scene(c), &format!("incline_{}", c.ratio))?;
-    let mut sim = Simulation::new(
-        &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
-    )?;
+    let (scene, mut sim) = build(&incline_scene(c), &format!("incline_{}", c.ratio), threads)?;
     let dt = scene.simulation.dt;
     let mean_x = |sim: &mut Simulation| {
         let st = sim.body_states();

@@ -112,8 +112,21 @@ pub fn set_velocity(sim: &mut Simulation, f: impl Fn(DVec3) -> DVec3) {
     }
 }
 
-pub(crate) fn parse(src: &str, name: &str) -> anyhow::Result<Scene> {
-    Ok(Scene::parse(src, Path::new(&format!("<validate:{name}>")))?)
+/// Parses a validation scene (named `<validate:name>` in errors) and builds its simulation.
+pub(crate) fn build(
+    src: &str,
+    name: &str,
+    threads: Option<usize>,
+) -> anyhow::Result<(Scene, Simulation)> {
+    let scene = Scene::parse(src, Path::new(&format!("<validate:{name}>")))?;
+    let sim = Simulation::new(
+        &scene,
+        &SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    Ok((scene, sim))
 }
 
 /// Relative tolerance of the free-fall check in f64: the grid transfer sums 27 weights per
@@ -132,14 +145,7 @@ pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
                   fill: Box(min: (0.08, 0.25, 0.08), max: (0.16, 0.33, 0.16)),
                   velocity: (0.1, 0.5, -0.05))],
     )"#;
-    let scene = parse(src, "free_fall")?;
-    let mut sim = Simulation::new(
-        &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
-    )?;
+    let (_, mut sim) = build(src, "free_fall", threads)?;
     let x0 = sim.body_states()[0].x.clone();
     let v0 = DVec3::new(0.1, 0.5, -0.05);
     let g = DVec3::new(0.0, -9.81, 0.0);
@@ -156,30 +162,26 @@ pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
         ev = ev.max((st.v[k] - v_exact).length() / v_exact.length());
     }
     Ok(vec![
-        Check {
-            case: "free_fall".into(),
-            quantity: "max relative position error".into(),
-            measured: ex,
-            published: 0.0,
-            tolerance: FREE_FALL_REL_TOL,
-            kind: "abs<=tol",
-            passed: ex <= FREE_FALL_REL_TOL,
-            note: format!(
-                "{} particles, {} substeps, exact law x0 + v0 t + g t (t + dt)/2",
-                st.x.len(),
-                sim.clock().total_substeps
-            ),
-        },
-        Check {
-            case: "free_fall".into(),
-            quantity: "max relative velocity error".into(),
-            measured: ev,
-            published: 0.0,
-            tolerance: FREE_FALL_REL_TOL,
-            kind: "abs<=tol",
-            passed: ev <= FREE_FALL_REL_TOL,
-            note: "v = v0 + g t".into(),
-        },
+        Check::at_most(
+            "free_fall",
+            "max relative position error".into(),
+            ex,
+            0.0,
+            FREE_FALL_REL_TOL,
+        )
+        .with_note(format!(
+            "{} particles, {} substeps, exact law x0 + v0 t + g t (t + dt)/2",
+            st.x.len(),
+            sim.clock().total_substeps
+        )),
+        Check::at_most(
+            "free_fall",
+            "max relative velocity error".into(),
+            ev,
+            0.0,
+            FREE_FALL_REL_TOL,
+        )
+        .with_note("v = v0 + g t".into()),
     ])
 }
 
@@ -278,16 +280,10 @@ pub fn run_collapse(
     mut progress: impl FnMut(f64),
 ) -> anyhow::Result<CollapseResult> {
     let start = std::time::Instant::now();
-    let scene = parse(
+    let (scene, mut sim) = build(
         &collapse_scene(c),
         &format!("column_collapse_a{}", c.aspect),
-    )?;
-    let mut sim = Simulation::new(
-        &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+        threads,
     )?;
     let dx = scene.simulation.dx;
     let x_wall = 3.0 * dx;

@@ -11,10 +11,10 @@
 //!
 //! `powderlab validate stability` prints the table; the test `stability_suite` runs it.
 
-use super::parse;
+use super::build;
 use crate::components::DeformationGradient;
 use crate::metrics::{frame_metrics, EnergyMonitor};
-use crate::sim::{SimOptions, Simulation};
+use crate::sim::Simulation;
 use glam::{DMat3, DVec3};
 use serde::Serialize;
 
@@ -296,15 +296,7 @@ pub fn run_case(case: &Case, threads: Option<usize>) -> CaseResult {
 }
 
 fn run_inner(case: &Case, threads: Option<usize>) -> Result<(Outcome, usize), String> {
-    let scene = parse(&case.scene, "stability").map_err(|e| e.to_string())?;
-    let mut sim = Simulation::new(
-        &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
-    )
-    .map_err(|e| e.to_string())?;
+    let (scene, mut sim) = build(&case.scene, "stability", threads).map_err(|e| e.to_string())?;
     if let Some(p) = case.prepare {
         p(&mut sim);
     }
