@@ -16,7 +16,7 @@
 //! correction to the period is `½ν²k²r²` ≈ 1e-4 here (k = π/2L, r² = a²/6 of the square
 //! section of side a = 2dx), far below the 1 % tolerance.
 
-use super::{build, set_velocity, Check};
+use super::{build, mean_x, set_velocity, Check};
 use crate::metrics::frame_metrics;
 use crate::sim::Simulation;
 use glam::DVec3;
@@ -162,11 +162,6 @@ pub fn run_bar(b: &Bar, threads: Option<usize>) -> anyhow::Result<BarResult> {
         substeps: sim.clock().total_substeps,
         wall_s: start.elapsed().as_secs_f64(),
     })
-}
-
-fn mean_x(sim: &mut Simulation) -> f64 {
-    let st = sim.body_states();
-    st[0].x.iter().map(|x| x.x).sum::<f64>() / st[0].x.len() as f64
 }
 
 fn energy(sim: &mut Simulation) -> f64 {

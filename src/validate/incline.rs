@@ -9,9 +9,8 @@
 //! 0.1 s after the ramp, is within 5 % of the law. At 1.05μ the law's acceleration is only 5 % of the
 //! friction deceleration, so a 5 % error in it is a 0.25 % error in the friction force.
 
-use super::{build, smooth_ramp, Check};
+use super::{build, mean_x, smooth_ramp, Check};
 use crate::components::SimParams;
-use crate::sim::Simulation;
 use serde::Serialize;
 
 /// Gravity is ramped in over this time (s) with [`smooth_ramp`], about 60 periods of the block's
@@ -118,10 +117,6 @@ pub fn run_incline(c: &Incline, threads: Option<usize>) -> anyhow::Result<Inclin
     let start = std::time::Instant::now();
     let (scene, mut sim) = build(&incline_scene(c), &format!("incline_{}", c.ratio), threads)?;
     let dt = scene.simulation.dt;
-    let mean_x = |sim: &mut Simulation| {
-        let st = sim.body_states();
-        st[0].x.iter().map(|x| x.x).sum::<f64>() / st[0].x.len() as f64
-    };
     let x0 = mean_x(&mut sim);
     let g_full = scene.simulation.gravity;
     let steps = ((INCLINE_RAMP + c.duration) / dt).round() as usize;
