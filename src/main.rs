@@ -179,14 +179,18 @@ fn simulate(
     }
     let pb = bar(steps as u64, false);
     let start = Instant::now();
+    // One set of frame metrics per step serves the energy monitor, the recording and the
+    // final report.
     let mut energy = powderlab::metrics::EnergyMonitor::default();
-    energy.observe(&frame_metrics(&mut sim.world, None));
+    let mut m = frame_metrics(&mut sim.world, target.as_deref());
+    energy.observe(&m);
     for _ in 0..steps {
         sim.step()?;
-        energy.observe(&frame_metrics(&mut sim.world, None));
+        m = frame_metrics(&mut sim.world, target.as_deref());
+        energy.observe(&m);
         #[cfg(feature = "rerun")]
         if let Some(r) = recorder.as_mut() {
-            r.frame(&mut sim.world)?;
+            r.frame_with(&mut sim.world, &m)?;
         }
         pb.inc(1);
     }
@@ -200,7 +204,6 @@ fn simulate(
         powderlab::ply::write_ply(path, &sim.body_states())
             .with_context(|| format!("writing {}", path.display()))?;
     }
-    let m = frame_metrics(&mut sim.world, target.as_deref());
     let ps = n as f64 * sim.clock().total_substeps as f64;
     eprintln!(
         "done: {steps} steps in {wall:.2} s ({:.3} M particle-substeps/s); mean height {:.4} m{}",

@@ -15,7 +15,7 @@
 
 use crate::components::*;
 use crate::mesh::shape_mesh;
-use crate::metrics::frame_metrics;
+use crate::metrics::{frame_metrics, FrameMetrics};
 use crate::util::partial_path;
 use bevy_ecs::prelude::*;
 use rerun::{Mesh3D, Points3D, RecordingStream, Scalars, Transform3D};
@@ -111,10 +111,26 @@ impl Recorder {
 
     /// Records the current state if the step is a recorded one.
     pub fn frame(&mut self, world: &mut World) -> anyhow::Result<()> {
-        let clock = *world.resource::<Clock>();
-        if !clock.step.is_multiple_of(self.every) {
+        if !self.records(world) {
             return Ok(());
         }
+        let m = frame_metrics(world, self.target.as_deref());
+        self.frame_with(world, &m)
+    }
+
+    /// Whether the current step is a recorded one.
+    pub fn records(&self, world: &World) -> bool {
+        world.resource::<Clock>().step.is_multiple_of(self.every)
+    }
+
+    /// [`Recorder::frame`] with the frame's metrics already computed by the caller (with the
+    /// scene's task target, as [`Recorder::for_scene`] takes it), so that a driver that also
+    /// needs them every step computes them once.
+    pub fn frame_with(&mut self, world: &mut World, m: &FrameMetrics) -> anyhow::Result<()> {
+        if !self.records(world) {
+            return Ok(());
+        }
+        let clock = *world.resource::<Clock>();
         let dt = world.resource::<SimParams>().dt;
         self.rec.set_time_sequence("step", clock.step as i64);
         self.rec
@@ -153,7 +169,6 @@ impl Recorder {
                 ),
             )?;
         }
-        let m = frame_metrics(world, self.target.as_deref());
         self.rec.log(
             "metrics/transported_particles",
             &Scalars::single(m.transported as f64),
