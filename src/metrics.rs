@@ -78,8 +78,8 @@ impl FrameMetrics {
 /// in play (see [`EnergyMonitor`]). Friction, plastic flow and the APIC transfers only take
 /// energy out, but symplectic Euler's energy oscillates about its conserved value with a
 /// relative amplitude of order ω·Δt_sub: a sand block bouncing elastically between the domain
-/// walls (ω·Δt_sub ≈ 0.06, `validate stability`, "powder packed against the domain boundary")
-/// swings by 6.4 % of the energy in play without any trend. An instability grows the energy
+/// walls (`validate stability`, "powder packed against the domain boundary") swings by 6.4 % of
+/// the energy in play without any trend. An instability grows the energy
 /// by orders of magnitude within a few steps, so 10 % separates the two.
 pub const ENERGY_GAIN_TOL: f64 = 0.1;
 
