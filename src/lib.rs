@@ -52,6 +52,7 @@ pub mod record;
 pub mod scene;
 pub mod sim;
 pub mod skills;
+pub mod study;
 pub mod systems;
 pub mod util;
 pub mod validate;

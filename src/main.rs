@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use powderlab::metrics::frame_metrics;
 use powderlab::sim::{SimOptions, Simulation};
+use powderlab::study;
 use powderlab::util::{peak_rss_bytes, write_atomic};
 use powderlab::validate;
 use serde_json::json;
@@ -106,6 +107,34 @@ enum Command {
         /// Also write the JSON report here.
         #[arg(long)]
         report: Option<PathBuf>,
+    },
+    /// Accuracy against cost. `error-vs-time` sweeps the grid resolution, the particles per cell
+    /// and the substeps on the column collapse and the transport task, and writes
+    /// results.json, error_vs_time.csv, error_vs_time.md and error_vs_time.svg to --out.
+    Study {
+        /// The study to run: error-vs-time.
+        study: String,
+        /// Output folder.
+        #[arg(long, default_value = "study")]
+        out: PathBuf,
+        /// The transport task's scene.
+        #[arg(long, default_value = "scenes/powder_transport.ron")]
+        scene: PathBuf,
+        /// A seconds-long version of the study (tests and CI).
+        #[arg(long)]
+        quick: bool,
+        /// Keep the configurations already finished in OUT/results.json.
+        #[arg(long)]
+        resume: bool,
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+        /// Run one configuration (JSON) and print its result: the study runs each
+        /// configuration in a process of its own, so that its peak memory is its own.
+        #[arg(long, hide = true)]
+        config: Option<String>,
     },
 }
 
@@ -414,6 +443,112 @@ fn bench(
     Ok(())
 }
 
+struct StudyArgs {
+    study: String,
+    out: PathBuf,
+    scene: PathBuf,
+    quick: bool,
+    resume: bool,
+    threads: Option<usize>,
+    json: bool,
+    config: Option<String>,
+}
+
+/// Runs one study configuration in a child process (this executable with `--config`).
+fn study_child(exe: &std::path::Path, cfg: &study::Config) -> study::ConfigResult {
+    let run = || -> Result<study::ConfigResult> {
+        let out = std::process::Command::new(exe)
+            .args(["study", "error-vs-time", "--config"])
+            .arg(serde_json::to_string(cfg)?)
+            .stdin(std::process::Stdio::null())
+            .output()
+            .with_context(|| format!("cannot start {}", exe.display()))?;
+        if !out.status.success() {
+            let err = String::from_utf8_lossy(&out.stderr);
+            bail!(
+                "{} ({})",
+                err.lines().last().unwrap_or("no message").trim(),
+                out.status
+            );
+        }
+        let text = String::from_utf8_lossy(&out.stdout);
+        serde_json::from_str(text.lines().last().unwrap_or(""))
+            .context("the configuration's child printed no result")
+    };
+    run().unwrap_or_else(|e| study::failed(cfg, format!("{e:#}")))
+}
+
+fn study_cmd(a: StudyArgs) -> Result<()> {
+    if a.study != "error-vs-time" {
+        bail!("unknown study '{}': expected error-vs-time", a.study);
+    }
+    if let Some(c) = &a.config {
+        let cfg: study::Config = serde_json::from_str(c).context("--config")?;
+        let r = study::run_config(&cfg)?;
+        println!("{}", serde_json::to_string(&r)?);
+        return Ok(());
+    }
+    let plan = study::plan(a.quick, &a.scene, a.threads);
+    // Fail fast on a scene the transport configurations cannot use.
+    if let Some(cfg) = plan.iter().find(|c| c.case == study::Case::PowderTransport) {
+        powderlab::optim::problem::Problem::new(study::transport_scene(cfg)?, study::TAPE_BUDGET)?;
+    }
+    let exe = std::env::current_exe().context("cannot find this executable")?;
+    let pb = bar(plan.len() as u64, a.json);
+    let start = Instant::now();
+    let (results, rows) = study::run_study(
+        &plan,
+        &a.out,
+        a.resume,
+        |cfg| study_child(&exe, cfg),
+        |i, cfg| {
+            pb.set_position(i as u64);
+            pb.set_message(cfg.label());
+        },
+    )?;
+    pb.finish_and_clear();
+    let failed: Vec<_> = results
+        .iter()
+        .filter_map(|r| {
+            r.failed
+                .as_ref()
+                .map(|f| json!({ "config": r.config.label(), "error": f }))
+        })
+        .collect();
+    let outputs = study::Outputs::in_dir(&a.out);
+    if a.json {
+        println!(
+            "{}",
+            json!({
+                "rows": rows,
+                "failed": failed,
+                "wall_s": start.elapsed().as_secs_f64(),
+                "csv": outputs.csv,
+                "svg": outputs.svg,
+                "results": outputs.results,
+            })
+        );
+    } else {
+        print!("{}", study::markdown(&rows));
+        for f in &failed {
+            eprintln!("FAILED {}: {}", f["config"], f["error"]);
+        }
+        eprintln!(
+            "{} configurations in {:.0} s; wrote {}, {}, {} and {}",
+            results.len(),
+            start.elapsed().as_secs_f64(),
+            outputs.csv.display(),
+            outputs.svg.display(),
+            outputs.markdown.display(),
+            outputs.results.display()
+        );
+    }
+    if !failed.is_empty() {
+        std::process::exit(1);
+    }
+    Ok(())
+}
+
 fn validate_cmd(
     case: String,
     cells: usize,
@@ -470,21 +605,33 @@ fn validate_cmd(
         if cells < 4 {
             bail!("--cells {cells} is too coarse: use at least 4 (20 for the published check)");
         }
+        let collapse = |a: f64, cells: usize| {
+            let pb = bar(1000, json_out);
+            pb.set_message(format!("column collapse a = {a}, {cells} cells"));
+            let r = validate::run_collapse(&validate::Collapse::new(a, cells), threads, |f| {
+                pb.set_position((f * 1000.0) as u64)
+            });
+            pb.finish_and_clear();
+            r
+        };
+        let mut at_one = None;
         for (band, aspects, slope, tol) in [
             ("small", [0.5, 1.0, 1.5], 1.0, 0.15),
             ("large", [4.0, 6.0, 8.0], 2.0 / 3.0, 0.12),
         ] {
             let mut rs = Vec::new();
             for a in aspects {
-                let pb = bar(1000, json_out);
-                pb.set_message(format!("column collapse a = {a}"));
-                let r = validate::run_collapse(&validate::Collapse::new(a, cells), threads, |f| {
-                    pb.set_position((f * 1000.0) as u64)
-                })?;
-                pb.finish_and_clear();
+                let r = collapse(a, cells)?;
+                if a == 1.0 {
+                    at_one = Some(r.clone());
+                }
                 rs.push(r);
             }
             checks.extend(validate::collapse_checks(band, &rs, slope, tol));
+        }
+        if let Some(coarse) = &at_one {
+            let fine = collapse(1.0, 2 * cells)?;
+            checks.push(validate::halving_check(coarse, &fine, cells));
         }
         checks.push(validate::scale_invariance(1.0, cells, threads)?);
     }
@@ -855,6 +1002,25 @@ fn main() {
             json,
             report,
         } => validate_cmd(case, cells, threads, json, report),
+        Command::Study {
+            study,
+            out,
+            scene,
+            quick,
+            resume,
+            threads,
+            json,
+            config,
+        } => study_cmd(StudyArgs {
+            study,
+            out,
+            scene,
+            quick,
+            resume,
+            threads,
+            json,
+            config,
+        }),
     };
     if let Err(e) = r {
         eprintln!("error: {e:#}");

@@ -358,7 +358,8 @@ impl Scene {
         }
     }
 
-    fn validate(&self) -> Result<(), SceneError> {
+    /// Checks every field (what [`Scene::parse`] does after parsing): for scenes edited in code.
+    pub fn validate(&self) -> Result<(), SceneError> {
         self.validate_fields().map_err(|e| self.field_error(e))
     }
 

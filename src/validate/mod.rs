@@ -223,6 +223,10 @@ pub struct Collapse {
     pub stiffness_ratio: f64,
     /// Coulomb friction of the floor.
     pub floor_friction: f64,
+    /// Particles per cell (a cube number).
+    pub particles_per_cell: usize,
+    /// CFL number of the stability guard: the substeps follow from it.
+    pub cfl: f64,
 }
 
 impl Collapse {
@@ -234,6 +238,8 @@ impl Collapse {
             friction_deg: 22.0,
             stiffness_ratio: 100.0,
             floor_friction: 0.577,
+            particles_per_cell: 8,
+            cfl: 0.5,
         }
     }
 }
@@ -248,6 +254,8 @@ pub struct CollapseResult {
     pub arrest_tc: Option<f64>,
     pub particles: usize,
     pub substeps: u64,
+    /// Substeps per global step, as the stability guard chose them.
+    pub substeps_per_step: usize,
     pub wall_s: f64,
     /// Final positions normalised by L₀ (for the scale-invariance check).
     #[serde(skip)]
@@ -280,11 +288,12 @@ pub fn collapse_scene(c: &Collapse) -> String {
     format!(
         r#"Scene(
     simulation: (cells: ({nx}, {ny}, {nz}), dx: {dx}, dt: 0.005, substeps: 1, stability: Auto,
-                 walls: (cells: {wall}, contact: Separate, friction: 0.0)),
+                 cfl: {cfl}, walls: (cells: {wall}, contact: Separate, friction: 0.0)),
     materials: {{ "sand": DruckerPrager((density: 1500.0, youngs_modulus: {e}, poisson_ratio: 0.3,
                                          friction_deg: {phi})) }},
     bodies: [(name: "column", material: "sand",
-              fill: Column(base: ({x0}, {y0}, {z0}), length: {l0}, aspect: {a}, depth: {depth}))],
+              fill: Column(base: ({x0}, {y0}, {z0}), length: {l0}, aspect: {a}, depth: {depth}),
+              particles_per_cell: {ppc})],
     colliders: [(name: "floor", kind: Container, shape: Plane(normal: (0.0, 1.0, 0.0)),
                  position: (0.0, {y0}, 0.0), friction: {mu}, particle_contact: false)],
 )"#,
@@ -293,6 +302,8 @@ pub fn collapse_scene(c: &Collapse) -> String {
         a = c.aspect,
         depth = 2.0 * dx,
         mu = c.floor_friction,
+        cfl = c.cfl,
+        ppc = c.particles_per_cell,
     )
 }
 
@@ -335,13 +346,14 @@ pub fn run_collapse(
     }
     let st = sim.body_states();
     let xs: Vec<f64> = st[0].x.iter().map(|x| x.x - x_wall).collect();
-    let front = deposit_front(&xs, dx, 4);
+    let front = deposit_front(&xs, dx, front_min_count(c.particles_per_cell));
     Ok(CollapseResult {
         aspect: c.aspect,
         runout_ratio: (front - c.length) / c.length,
         arrest_tc: arrest,
         particles: xs.len(),
         substeps: sim.clock().total_substeps,
+        substeps_per_step: sim.params().substeps,
         wall_s: start.elapsed().as_secs_f64(),
         deposit: st[0]
             .x
@@ -349,6 +361,13 @@ pub fn run_collapse(
             .map(|x| (*x - DVec3::new(x_wall, y_floor, 0.0)) / c.length)
             .collect(),
     })
+}
+
+/// Particles a one-cell bin needs to count as deposit in [`deposit_front`]: half a cell's worth
+/// (`⌈ppc/2⌉`, 4 at 8 particles per cell), i.e. a layer a quarter of a cell high across the slab's
+/// two-cell depth, whatever the particle count per cell.
+pub fn front_min_count(particles_per_cell: usize) -> usize {
+    particles_per_cell.div_ceil(2)
 }
 
 /// The deposit front: the far edge of the furthest x-bin (one cell wide) that holds at least
@@ -444,6 +463,29 @@ pub fn collapse_checks(
         }
     }
     out
+}
+
+/// Largest change of the run-out when the cell size is halved (granular.md: "The run-out must
+/// change by less than 5% when the cell size is halved").
+pub const HALVING_TOL: f64 = 0.05;
+
+/// The cell-halving check: the run-out of `coarse` against that of `fine`, the same column at
+/// half the cell size.
+pub fn halving_check(coarse: &CollapseResult, fine: &CollapseResult, cells: usize) -> Check {
+    Check::relative(
+        "column_collapse",
+        format!(
+            "run-out change on halving the cell size at a = {}",
+            coarse.aspect
+        ),
+        coarse.runout_ratio,
+        fine.runout_ratio,
+        HALVING_TOL,
+    )
+    .with_note(format!(
+        "{cells} and {} cells across L0 (the finer is the published value column);          `powderlab study error-vs-time` sweeps 5 to 40",
+        2 * cells
+    ))
 }
 
 /// Tolerance of the scale-invariance check: the RMS distance between the normalised deposits,
