@@ -1,0 +1,71 @@
+//! The central difference of a skill scene's loss along `u = (1, …, 1)/√5` in Θ, for step sizes
+//! ε from 1e-10 to 1e-3, against the adjoint's `∂L/∂Θ·u`: where they agree, and where a
+//! contact switch inside ±ε (a jump of the loss) takes over the difference.
+//!
+//! ```sh
+//! cargo run --release --example fd_eps_sweep -- SCENE [DX_M]
+//! ```
+//!
+//! `DX_M` re-grids the scene as `powderlab study error-vs-time` does (every length in metres
+//! kept, substeps scaled as 1/dx).
+
+use powderlab::optim::problem::Problem;
+use powderlab::scene::Scene;
+use powderlab::study::{transport_scene, Case, Config, Sweep};
+use rayon::prelude::*;
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let Some(path) = args.get(1) else {
+        anyhow::bail!("usage: fd_eps_sweep SCENE [DX_M]");
+    };
+    let scene = match args.get(2) {
+        Some(dx) => {
+            let dx: f64 = dx.parse()?;
+            let base = Scene::load(path)?;
+            let sub = ((base.simulation.substeps as f64 * base.simulation.dx / dx) - 1e-9).ceil();
+            transport_scene(&Config {
+                case: Case::PowderTransport,
+                sweep: Sweep::Resolution,
+                dx,
+                particles_per_cell: base.bodies[0].particles_per_cell,
+                cfl: None,
+                substeps: Some(sub as usize),
+                gradient: true,
+                steps: None,
+                scene: Some(path.into()),
+                threads: None,
+            })?
+        }
+        None => Scene::load(path)?,
+    };
+    let p = Problem::new(scene, 2048 << 20)?;
+    let t0 = p.scene_theta();
+    let u = [1.0 / 5f64.sqrt(); 5];
+    let o = p.evaluate(t0, true, false)?;
+    let g = o.grad.expect("asked for the gradient");
+    let adj: f64 = g.iter().zip(&u).map(|(g, u)| g * u).sum();
+    println!("L = {:.12}, adjoint ∂L/∂Θ·u = {adj:.6e}", o.loss);
+    println!(
+        "{:>8} {:>14} {:>14} {:>10}",
+        "eps", "L(+)-L(-)", "central diff", "rel err"
+    );
+    let eps: Vec<f64> = (0..8).map(|k| 10f64.powi(-10 + k)).collect();
+    let rows: Vec<(f64, f64, f64)> = eps
+        .par_iter()
+        .map(|&e| {
+            let at = |s: f64| {
+                let mut t = t0;
+                t.iter_mut().zip(&u).for_each(|(t, u)| *t += s * u);
+                p.evaluate(t, false, true).map(|o| o.loss)
+            };
+            let (lp, lm) = (at(e).unwrap(), at(-e).unwrap());
+            (e, lp - lm, (lp - lm) / (2.0 * e))
+        })
+        .collect();
+    for (e, d, fd) in rows {
+        let rel = (fd - adj).abs() / fd.abs().max(adj.abs());
+        println!("{e:>8.0e} {d:>14.6e} {fd:>14.6e} {rel:>10.2e}");
+    }
+    Ok(())
+}
