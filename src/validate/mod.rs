@@ -483,7 +483,8 @@ pub fn halving_check(coarse: &CollapseResult, fine: &CollapseResult, cells: usiz
         HALVING_TOL,
     )
     .with_note(format!(
-        "{cells} and {} cells across L0 (the finer is the published value column);          `powderlab study error-vs-time` sweeps 5 to 40",
+        "{cells} and {} cells across L0 (the finer is the published value column); \
+         `powderlab study error-vs-time` sweeps 5 to 40",
         2 * cells
     ))
 }
