@@ -11,7 +11,7 @@
 
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
-use powderlab::study::{transport_scene, Case, Config, Sweep};
+use powderlab::study::{along, transport_at, transport_scene};
 use rayon::prelude::*;
 
 fn main() -> anyhow::Result<()> {
@@ -19,25 +19,10 @@ fn main() -> anyhow::Result<()> {
     let Some(path) = args.get(1) else {
         anyhow::bail!("usage: fd_eps_sweep SCENE [DX_M]");
     };
+    let base = Scene::load(path)?;
     let scene = match args.get(2) {
-        Some(dx) => {
-            let dx: f64 = dx.parse()?;
-            let base = Scene::load(path)?;
-            let sub = ((base.simulation.substeps as f64 * base.simulation.dx / dx) - 1e-9).ceil();
-            transport_scene(&Config {
-                case: Case::PowderTransport,
-                sweep: Sweep::Resolution,
-                dx,
-                particles_per_cell: base.bodies[0].particles_per_cell,
-                cfl: None,
-                substeps: Some(sub as usize),
-                gradient: true,
-                steps: None,
-                scene: Some(path.into()),
-                threads: None,
-            })?
-        }
-        None => Scene::load(path)?,
+        Some(dx) => transport_scene(&transport_at(&base, dx.parse()?, true, None))?,
+        None => base,
     };
     let p = Problem::new(scene, 2048 << 20)?;
     let t0 = p.scene_theta();
@@ -54,11 +39,7 @@ fn main() -> anyhow::Result<()> {
     let rows: Vec<(f64, f64, f64)> = eps
         .par_iter()
         .map(|&e| {
-            let at = |s: f64| {
-                let mut t = t0;
-                t.iter_mut().zip(&u).for_each(|(t, u)| *t += s * u);
-                p.evaluate(t, false, true).map(|o| o.loss)
-            };
+            let at = |s: f64| p.evaluate(along(t0, &u, s), false, true).map(|o| o.loss);
             let (lp, lm) = (at(e).unwrap(), at(-e).unwrap());
             (e, lp - lm, (lp - lm) / (2.0 * e))
         })

@@ -488,7 +488,7 @@ fn study_cmd(a: StudyArgs) -> Result<()> {
         println!("{}", serde_json::to_string(&r)?);
         return Ok(());
     }
-    let plan = study::plan(a.quick, &a.scene, a.threads);
+    let plan = study::plan(a.quick, &a.scene, a.threads)?;
     // Fail fast on a scene the transport configurations cannot use.
     if let Some(cfg) = plan.iter().find(|c| c.case == study::Case::PowderTransport) {
         powderlab::optim::problem::Problem::new(study::transport_scene(cfg)?, study::TAPE_BUDGET)?;

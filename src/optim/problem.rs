@@ -37,6 +37,9 @@ pub struct Outcome {
     pub steps: usize,
     /// Substeps per step chosen by the stability guard.
     pub substeps: usize,
+    /// Particles of the rollout's scene.
+    #[serde(default)]
+    pub particles: usize,
     /// Seconds the rollout took (simulation, and the backward pass when asked for).
     pub wall_s: f64,
 }
@@ -135,6 +138,7 @@ impl Problem {
         let mut sim = self.simulation(theta, shared_pool)?;
         let steps = sim.horizon;
         let substeps = sim.params().substeps;
+        let particles = sim.particle_count();
         let context = || format!("rollout at Θ = {theta:?}");
         let (loss, grad) = if with_grad {
             let g = gradient(&mut sim, steps, &self.loss, Tape::Budget(self.tape_budget))
@@ -160,6 +164,7 @@ impl Problem {
             grad,
             steps,
             substeps,
+            particles,
             wall_s: t0.elapsed().as_secs_f64(),
         })
     }

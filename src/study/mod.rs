@@ -186,8 +186,45 @@ pub fn quantities(case: Case) -> &'static [&'static str] {
     }
 }
 
+/// Substeps per step that keep a scene's CFL number at cell size `dx`: its own substeps scaled
+/// by its cell size over `dx`, rounded up.
+pub fn substeps_at(scene: &Scene, dx: f64) -> usize {
+    ((scene.simulation.substeps as f64 * scene.simulation.dx / dx) - 1e-9).ceil() as usize
+}
+
+/// `θ + s·u`: a point on the line through `θ` along `u`.
+pub fn along(theta: [f64; 5], u: &[f64; 5], s: f64) -> [f64; 5] {
+    let mut t = theta;
+    t.iter_mut().zip(u).for_each(|(t, u)| *t += s * u);
+    t
+}
+
+/// A transport configuration on the resolution sweep at cell size `dx`, with the substeps that
+/// keep the scene's CFL number.
+pub fn transport_at(scene: &Scene, dx: f64, gradient: bool, threads: Option<usize>) -> Config {
+    Config {
+        case: Case::PowderTransport,
+        sweep: Sweep::Resolution,
+        dx,
+        particles_per_cell: scene.bodies.first().map_or(8, |b| b.particles_per_cell),
+        cfl: None,
+        substeps: Some(substeps_at(scene, dx)),
+        gradient,
+        steps: None,
+        scene: Some(scene.path.clone()),
+        threads,
+    }
+}
+
 /// The plans: `full` is the study in the README; `quick` is a seconds-long version for tests.
-pub fn plan(quick: bool, transport_scene: &Path, threads: Option<usize>) -> Vec<Config> {
+/// The transport levels are multiples of the scene's own cell size (5 mm for the shipped scene),
+/// and its particles per cell and substeps are the other sweeps' base.
+pub fn plan(
+    quick: bool,
+    transport_scene: &Path,
+    threads: Option<usize>,
+) -> anyhow::Result<Vec<Config>> {
+    let scene = Scene::load(transport_scene)?;
     let collapse = |sweep, cells: usize, ppc, cfl| Config {
         case: Case::ColumnCollapse,
         sweep,
@@ -200,22 +237,17 @@ pub fn plan(quick: bool, transport_scene: &Path, threads: Option<usize>) -> Vec<
         scene: None,
         threads,
     };
-    // The shipped scene's own settings: dx = 5 mm, 8 ppc, 12 substeps.
-    let (dx0, ppc0, sub0) = (0.005, 8, 12);
-    let transport = |sweep, dx: f64, ppc, substeps, gradient, steps| Config {
-        case: Case::PowderTransport,
-        sweep,
-        dx,
-        particles_per_cell: ppc,
-        cfl: None,
-        substeps: Some(substeps),
-        gradient,
-        steps,
-        scene: Some(transport_scene.to_path_buf()),
-        threads,
+    let dx0 = scene.simulation.dx;
+    // Another sweep at cell size `dx`: the resolution sweep's configuration with one knob moved.
+    let varied = |sweep, dx: f64, ppc: Option<usize>, substeps: Option<usize>| {
+        let base = transport_at(&scene, dx, false, threads);
+        Config {
+            sweep,
+            particles_per_cell: ppc.unwrap_or(base.particles_per_cell),
+            substeps: substeps.or(base.substeps),
+            ..base
+        }
     };
-    // Substeps scale with 1/dx, so that the CFL number stays that of the shipped scene.
-    let scaled = |dx: f64| ((sub0 as f64 * dx0 / dx) - 1e-9).ceil() as usize;
     let mut out = Vec::new();
     if quick {
         for cells in [4, 6, 8] {
@@ -223,33 +255,23 @@ pub fn plan(quick: bool, transport_scene: &Path, threads: Option<usize>) -> Vec<
         }
         out.push(collapse(Sweep::ParticlesPerCell, 6, 1, 0.5));
         out.push(collapse(Sweep::Substeps, 6, 8, 1.0));
-        for dx in [0.0075, 0.00625] {
-            out.push(transport(
-                Sweep::Resolution,
-                dx,
-                ppc0,
-                scaled(dx),
-                true,
-                Some(30),
-            ));
+        let dx = 1.5 * dx0;
+        for k in [1.5, 1.25] {
+            out.push(transport_at(&scene, k * dx0, true, threads));
         }
-        out.push(transport(
-            Sweep::ParticlesPerCell,
-            0.0075,
-            1,
-            8,
-            false,
-            Some(30),
-        ));
-        out.push(transport(
+        out.push(varied(Sweep::ParticlesPerCell, dx, Some(1), None));
+        out.push(varied(
             Sweep::Substeps,
-            0.0075,
-            ppc0,
-            16,
-            false,
-            Some(30),
+            dx,
+            None,
+            Some(2 * substeps_at(&scene, dx)),
         ));
-        return out;
+        for c in &mut out {
+            if c.case == Case::PowderTransport {
+                c.steps = Some(30);
+            }
+        }
+        return Ok(out);
     }
     // Column collapse: the validation runs use 20 cells across L₀, 8 ppc and CFL 0.5.
     for cells in [5, 7, 10, 14, 20, 28, 40] {
@@ -261,30 +283,21 @@ pub fn plan(quick: bool, transport_scene: &Path, threads: Option<usize>) -> Vec<
     for cfl in [1.0, 0.25, 0.125, 0.0625] {
         out.push(collapse(Sweep::Substeps, 20, 8, cfl));
     }
-    for dx in [0.0075, 0.00625, 0.005, 0.00375, 0.0025] {
-        out.push(transport(
-            Sweep::Resolution,
-            dx,
-            ppc0,
-            scaled(dx),
-            true,
-            None,
-        ));
+    for k in [1.5, 1.25, 1.0, 0.75, 0.5] {
+        out.push(transport_at(&scene, k * dx0, true, threads));
     }
     for ppc in [1, 27, 64] {
-        out.push(transport(
-            Sweep::ParticlesPerCell,
+        out.push(varied(Sweep::ParticlesPerCell, dx0, Some(ppc), None));
+    }
+    for k in [2, 4, 8] {
+        out.push(varied(
+            Sweep::Substeps,
             dx0,
-            ppc,
-            sub0,
-            false,
             None,
+            Some(k * scene.simulation.substeps),
         ));
     }
-    for n in [24, 48, 96] {
-        out.push(transport(Sweep::Substeps, dx0, ppc0, n, false, None));
-    }
-    out
+    Ok(out)
 }
 
 /// The transport scene at the configuration's resolution: every length in metres (domain,
@@ -363,7 +376,7 @@ fn run_transport_config(cfg: &Config) -> anyhow::Result<ConfigResult> {
     let theta = problem.scene_theta();
     let fwd = problem.evaluate(theta, false, false)?;
     let rss = peak_rss_bytes();
-    let particles = problem.simulation(theta, false)?.particle_count();
+    let particles = fwd.particles;
     // The eq. 5 loss sums over particles, whose number changes with the resolution: compare it
     // per particle (the mean distance to the target).
     let per = match problem.loss {
@@ -379,11 +392,9 @@ fn run_transport_config(cfg: &Config) -> anyhow::Result<ConfigResult> {
         let grad = g.grad.expect("asked for the gradient");
         let u = [1.0 / 5f64.sqrt(); 5];
         let shifted = |s: f64| {
-            let mut t = theta;
-            for (t, u) in t.iter_mut().zip(&u) {
-                *t += s * u;
-            }
-            problem.evaluate(t, false, false).map(|o| o.loss)
+            problem
+                .evaluate(along(theta, &u, s), false, false)
+                .map(|o| o.loss)
         };
         let (lp, lm) = (shifted(FD_EPS)?, shifted(-FD_EPS)?);
         Some(GradientResult {
@@ -878,7 +889,7 @@ mod tests {
 
     #[test]
     fn the_full_plan_sweeps_four_resolutions_or_more_per_case() {
-        let p = plan(false, Path::new("scenes/powder_transport.ron"), None);
+        let p = plan(false, Path::new("scenes/powder_transport.ron"), None).unwrap();
         for case in [Case::ColumnCollapse, Case::PowderTransport] {
             let n = p
                 .iter()
