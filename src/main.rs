@@ -637,12 +637,7 @@ fn validate_cmd(
     }
     let passed = checks.iter().all(|c| c.passed);
     let obj = json!({ "passed": passed, "checks": checks });
-    if let Some(p) = &report {
-        write_atomic(p, serde_json::to_string_pretty(&obj)?.as_bytes())?;
-    }
-    if json_out {
-        println!("{obj}");
-    } else {
+    if report_or_json(&obj, report.as_deref(), json_out)? {
         println!(
             "{:<16} {:<40} {:>12} {:>12} {:>10} {:<12} result",
             "case", "quantity", "measured", "published", "tolerance", "kind"
@@ -667,6 +662,22 @@ fn validate_cmd(
     Ok(())
 }
 
+/// Writes a validation report to `report` (atomically) if asked, and prints it as one JSON
+/// object with `--json`; returns whether the caller should print its text form instead.
+fn report_or_json(
+    obj: &serde_json::Value,
+    report: Option<&std::path::Path>,
+    json_out: bool,
+) -> Result<bool> {
+    if let Some(p) = report {
+        write_atomic(p, serde_json::to_string_pretty(obj)?.as_bytes())?;
+    }
+    if json_out {
+        println!("{obj}");
+    }
+    Ok(!json_out)
+}
+
 /// `validate stability`: every case of the suite, as a Markdown table (and JSON).
 fn stability_cmd(threads: Option<usize>, json_out: bool, report: Option<PathBuf>) -> Result<()> {
     use validate::stability::{cases, markdown, run_case};
@@ -681,12 +692,7 @@ fn stability_cmd(threads: Option<usize>, json_out: bool, report: Option<PathBuf>
     pb.finish_and_clear();
     let passed = results.iter().all(|r| r.outcome.acceptable());
     let obj = json!({ "passed": passed, "stability": results });
-    if let Some(p) = &report {
-        write_atomic(p, serde_json::to_string_pretty(&obj)?.as_bytes())?;
-    }
-    if json_out {
-        println!("{obj}");
-    } else {
+    if report_or_json(&obj, report.as_deref(), json_out)? {
         print!("{}", markdown(&results));
     }
     if !passed {
