@@ -92,13 +92,14 @@ enum Command {
     Optimize(OptimizeArgs),
     /// Check against exact solutions and published experiments.
     Validate {
-        /// free_fall, bar, self_weight, incline, column_collapse, stability, or all (every
-        /// case but stability, which has its own table).
+        /// free_fall, bar, self_weight, incline, column_collapse, pile_angle, stability, or all
+        /// (every case but stability, which has its own table).
         #[arg(default_value = "all")]
         case: String,
-        /// Grid cells across the collapsing column (at least 20 for the published check).
-        #[arg(long, default_value_t = 20)]
-        cells: usize,
+        /// Grid cells across the collapsing column (default 20, the published check) or the
+        /// pile's column (default 40).
+        #[arg(long)]
+        cells: Option<usize>,
         #[arg(long)]
         threads: Option<usize>,
         /// Print one JSON object.
@@ -551,7 +552,7 @@ fn study_cmd(a: StudyArgs) -> Result<()> {
 
 fn validate_cmd(
     case: String,
-    cells: usize,
+    cells: Option<usize>,
     threads: Option<usize>,
     json_out: bool,
     report: Option<PathBuf>,
@@ -564,6 +565,7 @@ fn validate_cmd(
         "self_weight",
         "incline",
         "column_collapse",
+        "pile_angle",
         "stability",
     ];
     if !known.contains(&case.as_str()) {
@@ -602,6 +604,7 @@ fn validate_cmd(
         }
     }
     if case == "all" || case == "column_collapse" {
+        let cells = cells.unwrap_or(20);
         if cells < 4 {
             bail!("--cells {cells} is too coarse: use at least 4 (20 for the published check)");
         }
@@ -634,6 +637,26 @@ fn validate_cmd(
             checks.push(validate::halving_check(coarse, &fine, cells));
         }
         checks.push(validate::scale_invariance(1.0, cells, threads)?);
+    }
+    if wants("pile_angle") {
+        let cells = cells.unwrap_or(validate::pile::PILE_CELLS);
+        if cells < 10 {
+            bail!("--cells {cells} is too coarse for a pile: use at least 10 ({} for the published check)", validate::pile::PILE_CELLS);
+        }
+        let mut rs = Vec::new();
+        for phi in validate::pile::PILE_FRICTION_DEG {
+            let pb = bar(1000, json_out);
+            pb.set_message(format!("pile at φ = {phi}°, {cells} cells"));
+            let p = validate::pile::Pile {
+                friction_deg: phi,
+                cells_across: cells,
+            };
+            rs.push(validate::pile::run_pile(&p, threads, |f| {
+                pb.set_position((f * 1000.0) as u64)
+            })?);
+            pb.finish_and_clear();
+        }
+        checks.extend(validate::pile::pile_checks(&rs, cells));
     }
     let passed = checks.iter().all(|c| c.passed);
     let obj = json!({ "passed": passed, "checks": checks });

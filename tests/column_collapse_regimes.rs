@@ -10,7 +10,7 @@ use powderlab::validate::{lube_runout, run_collapse, Collapse};
 /// Every run-out within this factor of the law (as in shared/validation/granular.md).
 const FACTOR: f64 = 2.0;
 /// Cells across the column for the small-a pair: a = 0.5 is then 8 cells high. Below ~12 cells
-/// the thin deposit tip of a low column is not resolved (8 cells gave ΔL/L₀ = 0.25 at a = 0.5).
+/// the thin deposit tip of a low column is not resolved (8 cells gave ΔL/L₀ = 0.25 at a = 0.5 with the first, 2-cell slab).
 const CELLS_SMALL_A: usize = 16;
 /// Cells across the column for the large-a pair (48 cells high at a = 6).
 const CELLS_LARGE_A: usize = 8;

@@ -9,11 +9,14 @@
 //! - `bar`: the fixed–free vibrating elastic bar (period and energy drift), [`bar`];
 //! - `self_weight`: the self-weight column (base stress and its convergence order), [`column`];
 //! - `incline`: a block on an incline below and above its friction angle, [`incline`];
+//! - `pile_angle`: the flank angle of a pile at rest against the plane-strain friction angle,
+//!   [`pile`];
 //! - `stability`: stiff and extreme cases, each stable or refused, never NaN, [`stability`].
 
 pub mod bar;
 pub mod column;
 pub mod incline;
+pub mod pile;
 pub mod stability;
 
 use crate::scene::Scene;
@@ -271,8 +274,16 @@ pub fn lube_runout(a: f64) -> f64 {
     }
 }
 
-/// The RON scene of a planar column collapse (a quasi-2D slab two cells thick between
-/// frictionless walls, on a rough floor).
+/// The RON scene of a planar column collapse: a quasi-2D slab between frictionless walls, on a
+/// rough floor.
+///
+/// The slab fills the z-gap between the walls' innermost node layers, `(wall − 1)·dx` to
+/// `(nz − wall)·dx` (4 cells), so that it is in plane strain: the walls act on grid nodes, and a
+/// node layer only stops the particles whose stencil it dominates. A slab two cells thick from
+/// `wall·dx` (the first version) had a free node layer between it and the lower wall: the
+/// collapsing slab's outermost particles moved up to 0.35 cells out in z on either side
+/// (φ = 30°, 20 cells), so it was closer to plane stress, and its flank angles came out below even the
+/// triaxial φ (30.7° at φ = 40°, against 37.6° in plane strain; `validate pile_angle`, 40 cells).
 pub fn collapse_scene(c: &Collapse) -> String {
     let dx = c.length / c.cells_across as f64;
     let h0 = c.aspect * c.length;
@@ -283,7 +294,7 @@ pub fn collapse_scene(c: &Collapse) -> String {
     let nz = wall * 2 + 3;
     let x0 = wall as f64 * dx;
     let y0 = wall as f64 * dx;
-    let z0 = wall as f64 * dx;
+    let z0 = (wall - 1) as f64 * dx;
     let e = c.stiffness_ratio * 1500.0 * 9.81 * h0;
     format!(
         r#"Scene(
@@ -300,7 +311,7 @@ pub fn collapse_scene(c: &Collapse) -> String {
         phi = c.friction_deg,
         l0 = c.length,
         a = c.aspect,
-        depth = 2.0 * dx,
+        depth = (nz - 2 * wall + 1) as f64 * dx,
         mu = c.floor_friction,
         cfl = c.cfl,
         ppc = c.particles_per_cell,
