@@ -145,10 +145,13 @@ pub fn error_vs_time_svg(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
                 elo = elo.min(*e);
                 ehi = ehi.max(*e);
             }
-            let mut chart = chart.build_cartesian_2d(
-                ((tlo / 1.6).max(1e-3)..thi * 1.6).log_scale(),
-                (elo / 2.0..ehi * 2.0).log_scale(),
-            )?;
+            let (xr, yr) = ((tlo / 1.6).max(1e-3)..thi * 1.6, elo / 2.0..ehi * 2.0);
+            let legend_at = emptiest_corner(
+                &pts.iter().map(|(r, e)| (r.wall_s, *e)).collect::<Vec<_>>(),
+                (xr.start, xr.end),
+                (yr.start, yr.end),
+            );
+            let mut chart = chart.build_cartesian_2d(xr.log_scale(), yr.log_scale())?;
             chart
                 .configure_mesh()
                 .x_desc("wall time (s)")
@@ -208,11 +211,62 @@ pub fn error_vs_time_svg(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
                 .background_style(WHITE.mix(0.85))
                 .border_style(BLACK)
                 .label_font(("sans-serif", 11))
-                .position(SeriesLabelPosition::LowerLeft)
+                .position(legend_at)
                 .draw()?;
         }
         root.present()?;
     }
     write_atomic(path, svg.as_bytes())?;
     Ok(())
+}
+
+/// The corner of a log–log panel whose third (in each axis) holds the fewest points, for the
+/// legend box: a fixed corner hid a point behind the box in some panels.
+fn emptiest_corner(pts: &[(f64, f64)], x: (f64, f64), y: (f64, f64)) -> SeriesLabelPosition {
+    let frac = |v: f64, (lo, hi): (f64, f64)| (v.ln() - lo.ln()) / (hi.ln() - lo.ln());
+    let corners = [
+        (SeriesLabelPosition::LowerLeft, false, false),
+        (SeriesLabelPosition::UpperRight, true, true),
+        (SeriesLabelPosition::LowerRight, true, false),
+        (SeriesLabelPosition::UpperLeft, false, true),
+    ];
+    let count = |right: bool, upper: bool| {
+        pts.iter()
+            .filter(|&&(px, py)| {
+                let (fx, fy) = (frac(px, x), frac(py, y));
+                (if right {
+                    fx > 2.0 / 3.0
+                } else {
+                    fx < 1.0 / 3.0
+                }) && (if upper {
+                    fy > 2.0 / 3.0
+                } else {
+                    fy < 1.0 / 3.0
+                })
+            })
+            .count()
+    };
+    corners
+        .into_iter()
+        .min_by_key(|&(_, r, u)| count(r, u))
+        .map_or(SeriesLabelPosition::LowerLeft, |c| c.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_legend_goes_to_a_corner_without_points() {
+        // Errors falling with time: points upper left and lower right; plus one lower left.
+        let pts = [
+            (0.2, 0.5),
+            (0.3, 0.4),
+            (50.0, 0.002),
+            (80.0, 0.001),
+            (0.2, 0.002),
+        ];
+        let at = emptiest_corner(&pts, (0.1, 100.0), (0.0005, 1.0));
+        assert!(matches!(at, SeriesLabelPosition::UpperRight), "{at:?}");
+    }
 }
