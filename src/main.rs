@@ -112,31 +112,7 @@ enum Command {
     /// Accuracy against cost. `error-vs-time` sweeps the grid resolution, the particles per cell
     /// and the substeps on the column collapse and the transport task, and writes
     /// results.json, error_vs_time.csv, error_vs_time.md and error_vs_time.svg to --out.
-    Study {
-        /// The study to run: error-vs-time.
-        study: String,
-        /// Output folder.
-        #[arg(long, default_value = "study")]
-        out: PathBuf,
-        /// The transport task's scene.
-        #[arg(long, default_value = "scenes/powder_transport.ron")]
-        scene: PathBuf,
-        /// A seconds-long version of the study (tests and CI).
-        #[arg(long)]
-        quick: bool,
-        /// Keep the configurations already finished in OUT/results.json.
-        #[arg(long)]
-        resume: bool,
-        #[arg(long)]
-        threads: Option<usize>,
-        /// Print one JSON object.
-        #[arg(long)]
-        json: bool,
-        /// Run one configuration (JSON) and print its result: the study runs each
-        /// configuration in a process of its own, so that its peak memory is its own.
-        #[arg(long, hide = true)]
-        config: Option<String>,
-    },
+    Study(StudyArgs),
 }
 
 fn bar(len: u64, quiet: bool) -> ProgressBar {
@@ -444,14 +420,31 @@ fn bench(
     Ok(())
 }
 
+/// `powderlab study`'s command line.
+#[derive(clap::Args)]
 struct StudyArgs {
+    /// The study to run: error-vs-time.
     study: String,
+    /// Output folder.
+    #[arg(long, default_value = "study")]
     out: PathBuf,
+    /// The transport task's scene.
+    #[arg(long, default_value = "scenes/powder_transport.ron")]
     scene: PathBuf,
+    /// A seconds-long version of the study (tests and CI).
+    #[arg(long)]
     quick: bool,
+    /// Keep the configurations already finished in OUT/results.json.
+    #[arg(long)]
     resume: bool,
+    #[arg(long)]
     threads: Option<usize>,
+    /// Print one JSON object.
+    #[arg(long)]
     json: bool,
+    /// Run one configuration (JSON) and print its result: the study runs each
+    /// configuration in a process of its own, so that its peak memory is its own.
+    #[arg(long, hide = true)]
     config: Option<String>,
 }
 
@@ -1031,25 +1024,7 @@ fn main() {
             json,
             report,
         } => validate_cmd(case, cells, threads, json, report),
-        Command::Study {
-            study,
-            out,
-            scene,
-            quick,
-            resume,
-            threads,
-            json,
-            config,
-        } => study_cmd(StudyArgs {
-            study,
-            out,
-            scene,
-            quick,
-            resume,
-            threads,
-            json,
-            config,
-        }),
+        Command::Study(args) => study_cmd(args),
     };
     if let Err(e) = r {
         eprintln!("error: {e:#}");

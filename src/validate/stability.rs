@@ -124,6 +124,33 @@ fn paddle(speed: f64, stability: &str) -> String {
     )
 }
 
+/// A sand box from `lo` to `hi` with `ppc` particles per cell on a floor at `floor_y`, in a grid
+/// of `cells` at `dx`.
+fn grid_and_ppc(
+    cells: (usize, usize, usize),
+    dx: f64,
+    (lo, hi): ([f64; 3], [f64; 3]),
+    ppc: usize,
+    floor_y: f64,
+) -> String {
+    let (nx, ny, nz) = cells;
+    let fill_box = format!(
+        "({}, {}, {}), max: ({}, {}, {})",
+        lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+    );
+    format!(
+        r#"Scene(
+    simulation: (cells: ({nx}, {ny}, {nz}), dx: {dx}, dt: 0.01, substeps: 10, stability: Auto),
+    materials: {{ "sand": {} }},
+    bodies: [(name: "sand", material: "sand", fill: Box(min: {fill_box}),
+              particles_per_cell: {ppc})],
+    colliders: [(name: "floor", kind: Container, shape: Plane(normal: (0.0, 1.0, 0.0)),
+                 position: (0.0, {floor_y}, 0.0), friction: 0.5, particle_contact: false)],
+)"#,
+        dp(2e4, 0.3, 30.0)
+    )
+}
+
 /// The CFL speed of [`paddle`]'s scene at its requested substeps: C·dx/Δt_sub − c.
 fn paddle_cfl_speed() -> f64 {
     let (mu, lambda) = crate::math::return_map::lame(2e4, 0.3);
@@ -210,31 +237,23 @@ pub fn cases() -> Vec<Case> {
     );
     add(
         "fine grid, 1 particle per cell (dx = 2.5 mm)".into(),
-        format!(
-            r#"Scene(
-    simulation: (cells: (64, 48, 64), dx: 0.0025, dt: 0.01, substeps: 10, stability: Auto),
-    materials: {{ "sand": {} }},
-    bodies: [(name: "sand", material: "sand", fill: Box(min: (0.05, 0.02, 0.05), max: (0.11, 0.06, 0.11)),
-              particles_per_cell: 1)],
-    colliders: [(name: "floor", kind: Container, shape: Plane(normal: (0.0, 1.0, 0.0)),
-                 position: (0.0, 0.0125, 0.0), friction: 0.5, particle_contact: false)],
-)"#,
-            dp(2e4, 0.3, 30.0)
+        grid_and_ppc(
+            (64, 48, 64),
+            0.0025,
+            ([0.05, 0.02, 0.05], [0.11, 0.06, 0.11]),
+            1,
+            0.0125,
         ),
         10,
     );
     add(
         "coarse grid, 64 particles per cell (dx = 2 cm)".into(),
-        format!(
-            r#"Scene(
-    simulation: (cells: (14, 12, 14), dx: 0.02, dt: 0.01, substeps: 10, stability: Auto),
-    materials: {{ "sand": {} }},
-    bodies: [(name: "sand", material: "sand", fill: Box(min: (0.08, 0.07, 0.08), max: (0.18, 0.13, 0.18)),
-              particles_per_cell: 64)],
-    colliders: [(name: "floor", kind: Container, shape: Plane(normal: (0.0, 1.0, 0.0)),
-                 position: (0.0, 0.06, 0.0), friction: 0.5, particle_contact: false)],
-)"#,
-            dp(2e4, 0.3, 30.0)
+        grid_and_ppc(
+            (14, 12, 14),
+            0.02,
+            ([0.08, 0.07, 0.08], [0.18, 0.13, 0.18]),
+            64,
+            0.06,
         ),
         10,
     );
