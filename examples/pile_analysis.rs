@@ -7,16 +7,14 @@
 //!
 //! With RAMP > 0, gravity is ramped in over that time ([`smooth_ramp`]) instead of all at once.
 
-use glam::DMat3;
-use powderlab::components::{Body, DeformationGradient, Position, SimParams};
-use powderlab::math::return_map::{hencky, kirchhoff_principal};
-use powderlab::math::svd::svd3;
+use powderlab::components::{Body, DeformationGradient, SimParams};
 use powderlab::scene::Scene;
 use powderlab::sim::{SimOptions, Simulation};
+use powderlab::validate::column::cauchy;
 use powderlab::validate::pile::{
-    davis_angle_deg, fit_flank, pile_collapse, plane_strain_angle_deg, Pile,
+    davis_angle_deg, flank_of, pile_collapse, plane_strain_angle_deg, Pile,
 };
-use powderlab::validate::{collapse_scene, smooth_ramp};
+use powderlab::validate::{collapse_scene, normalised_deposit, smooth_ramp};
 
 fn arg<T: std::str::FromStr>(k: usize, default: T) -> T {
     std::env::args()
@@ -45,7 +43,6 @@ fn main() -> anyhow::Result<()> {
     let scene = Scene::parse(&collapse_scene(&c), std::path::Path::new("<pile>"))?;
     let mut sim = Simulation::new(&scene, &SimOptions::default())?;
     let dx = scene.simulation.dx;
-    let (x_wall, y_floor) = (3.0 * dx, 3.0 * dx);
     let tc = (c.aspect * c.length / 9.81).sqrt();
     let g = glam::DVec3::from(scene.simulation.gravity);
     let z0: Vec<f64> = sim.body_states()[0].x.iter().map(|x| x.z / dx).collect();
@@ -58,13 +55,11 @@ fn main() -> anyhow::Result<()> {
             if k < steps || !stress.is_empty() {
                 return;
             }
-            let mut q = world.query::<(&Body, &DeformationGradient, &Position)>();
-            let (b, f, _) = q.iter(world).next().expect("one body");
+            let mut q = world.query::<(&Body, &DeformationGradient)>();
+            let (b, f) = q.iter(world).next().expect("one body");
             let (mu, lambda) = b.lame;
             for f in &f.0 {
-                let d = svd3(*f);
-                let tau = kirchhoff_principal(hencky(d.s), mu, lambda);
-                let s = d.u * DMat3::from_diagonal(tau) * d.u.transpose() / (d.s.x * d.s.y * d.s.z);
+                let s = cauchy(*f, mu, lambda);
                 let (sxx, syy, szz, sxy) = (s.x_axis.x, s.y_axis.y, s.z_axis.z, s.y_axis.x);
                 let p = -(sxx + syy + szz) / 3.0;
                 let p2 = -(sxx + syy) / 2.0;
@@ -76,12 +71,7 @@ fn main() -> anyhow::Result<()> {
         })?;
     }
     let st = sim.body_states();
-    let deposit: Vec<glam::DVec3> = st[0]
-        .x
-        .iter()
-        .map(|x| (*x - glam::DVec3::new(x_wall, y_floor, 0.0)) / c.length)
-        .collect();
-    let spacing = 1.0 / (cells as f64 * (c.particles_per_cell as f64).cbrt());
+    let deposit = normalised_deposit(&st[0].x, dx, c.length);
     println!(
         "φ = {phi}°, {cells} cells, {t_end} T_c, gravity ramp {ramp} T_c; {} particles",
         deposit.len()
@@ -91,7 +81,7 @@ fn main() -> anyhow::Result<()> {
         plane_strain_angle_deg(phi),
         davis_angle_deg(phi)
     );
-    match fit_flank(&deposit, spacing) {
+    match flank_of(&c, &deposit) {
         Some(f) => println!(
             "flank {:.2}° ({} points, RMS {:.2} cells), pile height {:.3} L0",
             f.angle_deg,

@@ -97,7 +97,7 @@ enum Command {
         #[arg(default_value = "all")]
         case: String,
         /// Grid cells across the collapsing column (default 20, the published check) or the
-        /// pile's column (default 40).
+        /// pile's column (default 40, at least 10).
         #[arg(long)]
         cells: Option<usize>,
         #[arg(long)]
@@ -126,6 +126,19 @@ fn bar(len: u64, quiet: bool) -> ProgressBar {
             .progress_chars("=> "),
     );
     pb
+}
+
+/// Runs `run` with a progress bar (hidden when `quiet`) that it moves from 0 to 1.
+fn with_progress<T>(
+    quiet: bool,
+    message: String,
+    run: impl FnOnce(&mut dyn FnMut(f64)) -> Result<T>,
+) -> Result<T> {
+    let pb = bar(1000, quiet);
+    pb.set_message(message);
+    let r = run(&mut |f| pb.set_position((f * 1000.0) as u64));
+    pb.finish_and_clear();
+    r
 }
 
 fn describe_stability(sim: &Simulation) {
@@ -597,18 +610,21 @@ fn validate_cmd(
         }
     }
     if case == "all" || case == "column_collapse" {
-        let cells = cells.unwrap_or(20);
+        let cells = cells.unwrap_or(validate::COLLAPSE_CELLS);
         if cells < 4 {
-            bail!("--cells {cells} is too coarse: use at least 4 (20 for the published check)");
+            bail!(
+                "--cells {cells} is too coarse: use at least 4 ({} for the published check)",
+                validate::COLLAPSE_CELLS
+            );
         }
         let collapse = |a: f64, cells: usize| {
-            let pb = bar(1000, json_out);
-            pb.set_message(format!("column collapse a = {a}, {cells} cells"));
-            let r = validate::run_collapse(&validate::Collapse::new(a, cells), threads, |f| {
-                pb.set_position((f * 1000.0) as u64)
-            });
-            pb.finish_and_clear();
-            r
+            with_progress(
+                json_out,
+                format!("column collapse a = {a}, {cells} cells"),
+                |progress| {
+                    validate::run_collapse(&validate::Collapse::new(a, cells), threads, progress)
+                },
+            )
         };
         let mut at_one = None;
         for (band, aspects, slope, tol) in [
@@ -632,24 +648,27 @@ fn validate_cmd(
         checks.push(validate::scale_invariance(1.0, cells, threads)?);
     }
     if wants("pile_angle") {
-        let cells = cells.unwrap_or(validate::pile::PILE_CELLS);
-        if cells < 10 {
-            bail!("--cells {cells} is too coarse for a pile: use at least 10 ({} for the published check)", validate::pile::PILE_CELLS);
+        use validate::pile::{run_pile, Pile, MIN_PILE_CELLS, PILE_CELLS, PILE_FRICTION_DEG};
+        let cells = cells.unwrap_or(PILE_CELLS);
+        if cells < MIN_PILE_CELLS {
+            bail!(
+                "--cells {cells} is too coarse for a pile: use at least {MIN_PILE_CELLS} \
+                 ({PILE_CELLS} for the published check)"
+            );
         }
         let mut rs = Vec::new();
-        for phi in validate::pile::PILE_FRICTION_DEG {
-            let pb = bar(1000, json_out);
-            pb.set_message(format!("pile at φ = {phi}°, {cells} cells"));
-            let p = validate::pile::Pile {
+        for phi in PILE_FRICTION_DEG {
+            let p = Pile {
                 friction_deg: phi,
                 cells_across: cells,
             };
-            rs.push(validate::pile::run_pile(&p, threads, |f| {
-                pb.set_position((f * 1000.0) as u64)
-            })?);
-            pb.finish_and_clear();
+            rs.push(with_progress(
+                json_out,
+                format!("pile at φ = {phi}°, {cells} cells"),
+                |progress| run_pile(&p, threads, progress),
+            )?);
         }
-        checks.extend(validate::pile::pile_checks(&rs, cells));
+        checks.extend(validate::pile::pile_checks(&rs));
     }
     let passed = checks.iter().all(|c| c.passed);
     let obj = json!({ "passed": passed, "checks": checks });

@@ -5,7 +5,7 @@
 //! are the laws a correct simulation cannot break.
 
 use powderlab::validate::pile::{
-    fit_flank, pile_collapse, plane_strain_angle_deg, Pile, MIN_FLANK_POINTS, PILE_FRICTION_DEG,
+    flank_of, pile_collapse, plane_strain_angle_deg, Pile, MIN_FLANK_POINTS, PILE_FRICTION_DEG,
 };
 use powderlab::validate::run_collapse;
 use serde_json::Value;
@@ -33,8 +33,7 @@ fn flank_angle_rises_with_friction_and_the_slab_stays_in_plane_strain() {
             cells_across: CELLS,
         });
         let r = run_collapse(&c, Some(2), |_| {}).unwrap();
-        let spacing = 1.0 / (CELLS as f64 * (c.particles_per_cell as f64).cbrt());
-        let f = fit_flank(&r.deposit, spacing).expect("a flank");
+        let f = flank_of(&c, &r.deposit).expect("a flank");
         println!(
             "φ = {phi}°: flank {:.2}° (plane strain {:.1}°), {} points, {:.1} s",
             f.angle_deg,

@@ -115,17 +115,17 @@ pub fn column_scene(c: &Column) -> String {
     )
 }
 
-/// σ_yy (Cauchy) of a particle of StVK-Hencky material with deformation gradient `f`.
-pub fn cauchy_yy(f: glam::DMat3, mu: f64, lambda: f64) -> f64 {
+/// The Cauchy stress of a particle of StVK-Hencky material with deformation gradient `f`:
+/// `σ = U diag(τ) Uᵀ / J` with `τ` the principal Kirchhoff stresses.
+pub fn cauchy(f: glam::DMat3, mu: f64, lambda: f64) -> glam::DMat3 {
     let d = svd3(f);
     let tau = kirchhoff_principal(hencky(d.s), mu, lambda);
-    let j = d.s.x * d.s.y * d.s.z;
-    let u = d.u;
-    // σ = U diag(τ) Uᵀ / J; its yy entry is Σ_k U_yk² τ_k / J.
-    (u.x_axis.y * u.x_axis.y * tau.x
-        + u.y_axis.y * u.y_axis.y * tau.y
-        + u.z_axis.y * u.z_axis.y * tau.z)
-        / j
+    d.u * glam::DMat3::from_diagonal(tau) * d.u.transpose() / (d.s.x * d.s.y * d.s.z)
+}
+
+/// σ_yy (Cauchy) of a particle of StVK-Hencky material with deformation gradient `f`.
+pub fn cauchy_yy(f: glam::DMat3, mu: f64, lambda: f64) -> f64 {
+    cauchy(f, mu, lambda).y_axis.y
 }
 
 /// Runs one column and averages the base stress over whole periods.

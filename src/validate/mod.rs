@@ -211,6 +211,9 @@ pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
     ])
 }
 
+/// Cells across L₀ of `validate column_collapse` (granular.md: at least 20).
+pub const COLLAPSE_CELLS: usize = 20;
+
 /// Settings of one planar column collapse.
 #[derive(Clone, Copy, Debug)]
 pub struct Collapse {
@@ -287,7 +290,7 @@ pub fn lube_runout(a: f64) -> f64 {
 pub fn collapse_scene(c: &Collapse) -> String {
     let dx = c.length / c.cells_across as f64;
     let h0 = c.aspect * c.length;
-    let wall = 3usize;
+    let wall = COLLAPSE_WALL_CELLS;
     let predicted = lube_runout(c.aspect) + 1.0;
     let nx = wall * 2 + (2.0 * predicted * c.cells_across as f64).ceil() as usize + 8;
     let ny = wall * 2 + (h0 / dx).ceil() as usize + 4;
@@ -318,6 +321,18 @@ pub fn collapse_scene(c: &Collapse) -> String {
     )
 }
 
+/// Wall cells of [`collapse_scene`]: the column leans on the left wall and stands on the floor,
+/// both at `COLLAPSE_WALL_CELLS·dx`.
+pub const COLLAPSE_WALL_CELLS: usize = 3;
+
+/// Particle positions of [`collapse_scene`] relative to the left wall and the floor, over L₀.
+pub fn normalised_deposit(x: &[DVec3], dx: f64, length: f64) -> Vec<DVec3> {
+    let corner = COLLAPSE_WALL_CELLS as f64 * dx;
+    x.iter()
+        .map(|x| (*x - DVec3::new(corner, corner, 0.0)) / length)
+        .collect()
+}
+
 /// Runs one collapse to arrest (or 6 T_c).
 pub fn run_collapse(
     c: &Collapse,
@@ -331,8 +346,8 @@ pub fn run_collapse(
         threads,
     )?;
     let dx = scene.simulation.dx;
-    let x_wall = 3.0 * dx;
-    let y_floor = 3.0 * dx;
+    let x_wall = COLLAPSE_WALL_CELLS as f64 * dx;
+    let y_floor = x_wall;
     let h0 = c.aspect * c.length;
     let tc = (h0 / 9.81).sqrt();
     let dt = scene.simulation.dt;
@@ -366,11 +381,7 @@ pub fn run_collapse(
         substeps: sim.clock().total_substeps,
         substeps_per_step: sim.params().substeps,
         wall_s: start.elapsed().as_secs_f64(),
-        deposit: st[0]
-            .x
-            .iter()
-            .map(|x| (*x - DVec3::new(x_wall, y_floor, 0.0)) / c.length)
-            .collect(),
+        deposit: normalised_deposit(&st[0].x, dx, c.length),
     })
 }
 

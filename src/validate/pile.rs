@@ -11,7 +11,6 @@
 use super::{run_collapse, Check, Collapse, CollapseResult};
 use crate::math::return_map::dp_alpha;
 use glam::DVec3;
-use serde::Serialize;
 
 /// Aspect ratio H₀/L₀ of the column (granular.md: "a low, wide column (a ≈ 0.3–0.5)").
 pub const PILE_ASPECT: f64 = 0.4;
@@ -26,6 +25,8 @@ pub const FLANK_BAND: (f64, f64) = (0.1, 0.8);
 /// Cells across L₀: the a = 0.4 column is then 16 cells high, and a 70° flank between 10 % and
 /// 80 % of its height spans 22 rows of particles.
 pub const PILE_CELLS: usize = 40;
+/// Fewest cells across L₀ `validate pile_angle` accepts: the column is then 4 cells high.
+pub const MIN_PILE_CELLS: usize = 10;
 /// Fewest surface points a flank fit needs before its angle means anything.
 pub const MIN_FLANK_POINTS: usize = 5;
 
@@ -61,26 +62,13 @@ pub struct Pile {
     pub cells_across: usize,
 }
 
-/// Outcome of one pile.
-#[derive(Clone, Debug, Serialize)]
+/// Outcome of one pile: the collapse and the line fitted to its flank (`None` if the flank had
+/// fewer than [`MIN_FLANK_POINTS`] surface points).
+#[derive(Clone, Debug)]
 pub struct PileResult {
-    pub friction_deg: f64,
-    /// The plane-strain angle the flank is compared with (degrees).
-    pub effective_deg: f64,
-    /// The fitted flank angle (degrees); `None` if the flank had fewer than
-    /// [`MIN_FLANK_POINTS`] surface points.
-    pub angle_deg: Option<f64>,
-    /// The pile's height over L₀.
-    pub height: f64,
-    /// Surface points in the fitted band.
-    pub flank_points: usize,
-    /// RMS distance of those points from the fitted line, in cells.
-    pub rms_cells: f64,
-    pub runout_ratio: f64,
-    pub arrest_tc: Option<f64>,
-    pub particles: usize,
-    pub substeps: u64,
-    pub wall_s: f64,
+    pub pile: Pile,
+    pub fit: Option<FlankFit>,
+    pub collapse: CollapseResult,
 }
 
 /// A line fitted to a pile's flank.
@@ -211,6 +199,12 @@ pub fn pile_collapse(p: &Pile) -> Collapse {
     c
 }
 
+/// The flank of a collapse's deposit (in units of L₀), binned by the initial particle spacing.
+pub fn flank_of(c: &Collapse, deposit: &[DVec3]) -> Option<FlankFit> {
+    let spacing = 1.0 / (c.cells_across as f64 * (c.particles_per_cell as f64).cbrt());
+    fit_flank(deposit, spacing)
+}
+
 /// Lets the column of [`pile_collapse`] come to rest and fits its flank.
 pub fn run_pile(
     p: &Pile,
@@ -218,54 +212,43 @@ pub fn run_pile(
     progress: impl FnMut(f64),
 ) -> anyhow::Result<PileResult> {
     let c = pile_collapse(p);
-    let r: CollapseResult = run_collapse(&c, threads, progress)?;
-    // One bin per particle spacing (the deposit is in units of L₀).
-    let spacing = 1.0 / (c.cells_across as f64 * (c.particles_per_cell as f64).cbrt());
-    let fit = fit_flank(&r.deposit, spacing);
+    let collapse = run_collapse(&c, threads, progress)?;
     Ok(PileResult {
-        friction_deg: p.friction_deg,
-        effective_deg: plane_strain_angle_deg(p.friction_deg),
-        angle_deg: fit.as_ref().map(|f| f.angle_deg),
-        height: fit.as_ref().map_or(0.0, |f| f.height),
-        flank_points: fit.as_ref().map_or(0, |f| f.points),
-        rms_cells: fit
-            .as_ref()
-            .map_or(f64::NAN, |f| f.rms * c.cells_across as f64),
-        runout_ratio: r.runout_ratio,
-        arrest_tc: r.arrest_tc,
-        particles: r.particles,
-        substeps: r.substeps,
-        wall_s: r.wall_s,
+        pile: *p,
+        fit: flank_of(&c, &collapse.deposit),
+        collapse,
     })
 }
 
 /// One check per pile (the flank within [`PILE_ANGLE_TOL_DEG`] of the plane-strain angle) and
 /// one that the angle rises with the friction angle.
-pub fn pile_checks(results: &[PileResult], cells: usize) -> Vec<Check> {
+pub fn pile_checks(results: &[PileResult]) -> Vec<Check> {
+    let angle = |r: &PileResult| r.fit.as_ref().map_or(f64::NAN, |f| f.angle_deg);
     let mut out = Vec::new();
     for r in results {
-        let measured = r.angle_deg.unwrap_or(f64::NAN);
+        let (measured, effective) = (angle(r), plane_strain_angle_deg(r.pile.friction_deg));
+        let (cells, c) = (r.pile.cells_across, &r.collapse);
         out.push(Check {
             case: "pile_angle".into(),
-            quantity: format!("flank angle (deg) at φ = {}°", r.friction_deg),
+            quantity: format!("flank angle (deg) at φ = {}°", r.pile.friction_deg),
             measured,
-            published: r.effective_deg,
+            published: effective,
             tolerance: PILE_ANGLE_TOL_DEG,
             kind: "|m-p|<=tol",
-            passed: (measured - r.effective_deg).abs() <= PILE_ANGLE_TOL_DEG,
-            note: match r.angle_deg {
-                Some(_) => format!(
+            passed: (measured - effective).abs() <= PILE_ANGLE_TOL_DEG,
+            note: match &r.fit {
+                Some(f) => format!(
                     "a = {PILE_ASPECT}, {cells} cells across L0; pile height {:.3} L0, {} flank \
                      points, RMS {:.2} cells off the line; run-out {:.3} L0; {} particles, {} \
                      substeps, {:.1} s; arrest at {} T_c",
-                    r.height,
-                    r.flank_points,
-                    r.rms_cells,
-                    r.runout_ratio,
-                    r.particles,
-                    r.substeps,
-                    r.wall_s,
-                    r.arrest_tc.map_or("> 6".to_string(), |t| format!("{t:.2}"))
+                    f.height,
+                    f.points,
+                    f.rms * cells as f64,
+                    c.runout_ratio,
+                    c.particles,
+                    c.substeps,
+                    c.wall_s,
+                    c.arrest_tc.map_or("> 6".to_string(), |t| format!("{t:.2}"))
                 ),
                 None => format!(
                     "fewer than {MIN_FLANK_POINTS} surface points on the flank: use more cells"
@@ -274,10 +257,7 @@ pub fn pile_checks(results: &[PileResult], cells: usize) -> Vec<Check> {
         });
     }
     if results.len() >= 2 {
-        let angles: Vec<f64> = results
-            .iter()
-            .map(|r| r.angle_deg.unwrap_or(f64::NAN))
-            .collect();
+        let angles: Vec<f64> = results.iter().map(angle).collect();
         let rising = angles.windows(2).all(|w| w[1] > w[0]);
         out.push(Check {
             case: "pile_angle".into(),
@@ -289,7 +269,10 @@ pub fn pile_checks(results: &[PileResult], cells: usize) -> Vec<Check> {
             passed: rising,
             note: format!(
                 "φ = {:?}°: {}",
-                results.iter().map(|r| r.friction_deg).collect::<Vec<_>>(),
+                results
+                    .iter()
+                    .map(|r| r.pile.friction_deg)
+                    .collect::<Vec<_>>(),
                 angles
                     .iter()
                     .map(|a| format!("{a:.1}°"))
@@ -380,17 +363,26 @@ mod tests {
 
     fn result(phi: f64, angle: Option<f64>) -> PileResult {
         PileResult {
-            friction_deg: phi,
-            effective_deg: plane_strain_angle_deg(phi),
-            angle_deg: angle,
-            height: 0.4,
-            flank_points: 10,
-            rms_cells: 0.3,
-            runout_ratio: 0.5,
-            arrest_tc: Some(3.0),
-            particles: 1,
-            substeps: 1,
-            wall_s: 0.0,
+            pile: Pile {
+                friction_deg: phi,
+                cells_across: 40,
+            },
+            fit: angle.map(|angle_deg| FlankFit {
+                angle_deg,
+                height: 0.4,
+                points: 10,
+                rms: 0.3 / 40.0,
+            }),
+            collapse: CollapseResult {
+                aspect: PILE_ASPECT,
+                runout_ratio: 0.5,
+                arrest_tc: Some(3.0),
+                particles: 1,
+                substeps: 1,
+                substeps_per_step: 1,
+                wall_s: 0.0,
+                deposit: Vec::new(),
+            },
         }
     }
 
@@ -401,13 +393,13 @@ mod tests {
             result(30.0, Some(42.0)),
             result(40.0, Some(68.0)),
         ];
-        assert!(pile_checks(&good, 40).iter().all(|c| c.passed));
+        assert!(pile_checks(&good).iter().all(|c| c.passed));
         let bad = [
             result(20.0, Some(28.0)),
             result(30.0, Some(25.0)),
             result(40.0, None),
         ];
-        let c = pile_checks(&bad, 40);
+        let c = pile_checks(&bad);
         assert_eq!(
             c.iter().map(|c| c.passed).collect::<Vec<_>>(),
             [true, false, false, false]
