@@ -436,7 +436,7 @@ fn bench(
 /// `powderlab study`'s command line.
 #[derive(clap::Args)]
 struct StudyArgs {
-    /// The study to run: error-vs-time.
+    /// The study to run: error-vs-time, or growth (time per substep against particles and grid).
     study: String,
     /// Output folder.
     #[arg(long, default_value = "study")]
@@ -486,8 +486,14 @@ fn study_child(exe: &std::path::Path, cfg: &study::Config) -> study::ConfigResul
 }
 
 fn study_cmd(a: StudyArgs) -> Result<()> {
+    if a.study == "growth" {
+        return growth_cmd(a);
+    }
     if a.study != "error-vs-time" {
-        bail!("unknown study '{}': expected error-vs-time", a.study);
+        bail!(
+            "unknown study '{}': expected error-vs-time or growth",
+            a.study
+        );
     }
     if let Some(c) = &a.config {
         let cfg: study::Config = serde_json::from_str(c).context("--config")?;
@@ -552,6 +558,87 @@ fn study_cmd(a: StudyArgs) -> Result<()> {
     }
     if !failed.is_empty() {
         std::process::exit(1);
+    }
+    Ok(())
+}
+
+/// `powderlab study growth` (`powderlab::study::growth`): each configuration in a child process.
+fn growth_cmd(a: StudyArgs) -> Result<()> {
+    use powderlab::study::growth;
+    let scene = PathBuf::from("scenes/sand_box.ron");
+    let base = powderlab::scene::Scene::load(&scene)?;
+    if let Some(c) = &a.config {
+        let cfg: growth::GrowthConfig = serde_json::from_str(c).context("--config")?;
+        println!(
+            "{}",
+            serde_json::to_string(&growth::run_config(&base, &cfg)?)?
+        );
+        return Ok(());
+    }
+    let plan = growth::plan(a.quick, a.threads.or(Some(2)));
+    for cfg in &plan {
+        growth::growth_scene(&base, cfg)?;
+    }
+    let exe = std::env::current_exe().context("cannot find this executable")?;
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create the output folder {}", a.out.display()))?;
+    let outputs = growth::GrowthOutputs::in_dir(&a.out);
+    let pb = bar(plan.len() as u64, a.json);
+    let start = Instant::now();
+    let mut results = Vec::new();
+    for cfg in &plan {
+        pb.set_message(format!("{:?} {} cells", cfg.series, cfg.cells));
+        let out = std::process::Command::new(&exe)
+            .args(["study", "growth", "--config"])
+            .arg(serde_json::to_string(cfg)?)
+            .stdin(std::process::Stdio::null())
+            .output()
+            .with_context(|| format!("cannot start {}", exe.display()))?;
+        if !out.status.success() {
+            let err = String::from_utf8_lossy(&out.stderr);
+            bail!(
+                "growth configuration {cfg:?} failed: {}",
+                err.lines().last().unwrap_or("no message").trim()
+            );
+        }
+        let text = String::from_utf8_lossy(&out.stdout);
+        results.push(
+            serde_json::from_str::<growth::GrowthResult>(text.lines().last().unwrap_or(""))
+                .context("the configuration's child printed no result")?,
+        );
+        // Everything measured so far is on disk, whenever the study is stopped.
+        growth::write_outputs(&outputs, &results)?;
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let spread = growth::particle_series_spread(&results);
+    if a.json {
+        println!(
+            "{}",
+            json!({
+                "results": results,
+                "particle_series_max_over_min_throughput": spread,
+                "wall_s": start.elapsed().as_secs_f64(),
+                "csv": outputs.csv,
+                "svg": outputs.svg,
+            })
+        );
+    } else {
+        print!("{}", growth::csv(&results));
+        if let Some(s) = spread {
+            println!(
+                "particle series: fastest/slowest throughput {s:.3} (flat within 20 % is ≤ 1.2: {})",
+                if s <= 1.2 { "PASS" } else { "FAIL" }
+            );
+        }
+        eprintln!(
+            "{} configurations in {:.0} s; wrote {}, {} and {}",
+            results.len(),
+            start.elapsed().as_secs_f64(),
+            outputs.csv.display(),
+            outputs.svg.display(),
+            outputs.results.display()
+        );
     }
     Ok(())
 }

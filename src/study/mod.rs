@@ -19,6 +19,7 @@
 //! direction of Θ at the same resolution. The Pareto front marks the configurations that no other
 //! configuration beats on both run time and error.
 
+pub mod growth;
 pub mod plot;
 
 use crate::adjoint::tape::Loss;

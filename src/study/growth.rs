@@ -1,0 +1,344 @@
+//! `powderlab study growth`: how the cost of a substep grows with the particle count and with
+//! the grid.
+//!
+//! Two series on variants of the `sand_box` scene (the Taichi reference's scene: a cube of
+//! Drucker–Prager sand, 2×2×2 particles per cell on a regular lattice, a moving box tool, unit
+//! cube domain with 3 wall cells):
+//! - **particles**: the block is 0.4 of the domain wide and the grid is refined with it, from
+//!   about 10k to 1M particles. Particles per cell and the block's share of the domain stay
+//!   fixed, so a constant time per particle-substep is the ideal.
+//! - **grid**: a fixed block of 19 cells (38³ = 54,872 particles, less 56 that the tool starts
+//!   in on the coarsest grid) on ever larger grids, 32³ to 160³ nodes. The grid is dense, so the grid stages grow with the nodes while the particle
+//!   stages do not.
+//!
+//! Each configuration runs in a child process of its own (its peak RSS is its own); the substeps
+//! per step grow with the resolution so that every variant passes the strict stability check.
+//! The first step (one substep's allocations, the warm start of the SVD) is not timed.
+
+use crate::scene::{BodySpec, Fill, Scene};
+use crate::sim::{SimOptions, Simulation};
+use crate::util::{peak_rss_bytes, write_atomic};
+use plotters::coord::combinators::IntoLogRange;
+use plotters::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Which series a configuration belongs to.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Series {
+    Particles,
+    Grid,
+}
+
+/// One configuration: `cells`³ grid nodes over the unit cube, a block `block_cells` cells wide.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct GrowthConfig {
+    pub series: Series,
+    pub cells: usize,
+    pub block_cells: usize,
+    pub threads: Option<usize>,
+}
+
+/// What one configuration measured.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct GrowthResult {
+    pub config: GrowthConfig,
+    pub particles: usize,
+    pub nodes: usize,
+    pub threads: usize,
+    pub substeps_timed: u64,
+    pub wall_s: f64,
+    pub seconds_per_substep: f64,
+    pub ns_per_particle_substep: f64,
+    pub particle_substeps_per_s: f64,
+    pub peak_rss_bytes: u64,
+}
+
+/// `sand_box`'s resolution, at which it takes 20 substeps per step.
+const BASE_CELLS: usize = 48;
+const BASE_SUBSTEPS: usize = 20;
+/// Block width of the grid series: `sand_box`'s block (0.4 m at 48 cells is 19.2 cells; 19
+/// keeps the lattice whole).
+const GRID_SERIES_BLOCK: usize = 19;
+
+/// The study's configurations. `quick`: two small ones per series (tests).
+pub fn plan(quick: bool, threads: Option<usize>) -> Vec<GrowthConfig> {
+    let particles: &[usize] = if quick {
+        &[16, 20]
+    } else {
+        &[27, 34, 43, 54, 68, 86, 108, 126]
+    };
+    let grid: &[usize] = if quick {
+        &[24, 32]
+    } else {
+        &[32, 48, 64, 96, 128, 160]
+    };
+    let block = |n: usize| {
+        if quick {
+            4
+        } else {
+            (0.4 * n as f64).round() as usize
+        }
+    };
+    particles
+        .iter()
+        .map(|&n| GrowthConfig {
+            series: Series::Particles,
+            cells: n,
+            block_cells: block(n),
+            threads,
+        })
+        .chain(grid.iter().map(|&n| GrowthConfig {
+            series: Series::Grid,
+            cells: n,
+            block_cells: if quick { 4 } else { GRID_SERIES_BLOCK },
+            threads,
+        }))
+        .collect()
+}
+
+/// `base` (the `sand_box` scene) at `cfg`'s resolution and block size. The block is centred in
+/// x and z and stands one cell above the floor's wall cells, on whole cells, so the regular
+/// lattice puts exactly `(2·block_cells)³` particles in it.
+pub fn growth_scene(base: &Scene, cfg: &GrowthConfig) -> anyhow::Result<Scene> {
+    let mut s = base.clone();
+    let n = cfg.cells;
+    let dx = 1.0 / n as f64;
+    let walls = s.simulation.walls.cells;
+    if cfg.block_cells + 2 * walls + 2 > n {
+        anyhow::bail!(
+            "a block of {} cells does not fit a {n}-cell grid with {walls} wall cells",
+            cfg.block_cells
+        );
+    }
+    s.simulation.cells = (n, n, n);
+    s.simulation.dx = dx;
+    s.simulation.substeps = (BASE_SUBSTEPS * n).div_ceil(BASE_CELLS);
+    let lo_xz = ((n - cfg.block_cells) / 2) as f64 * dx;
+    let lo_y = (walls + 1) as f64 * dx;
+    let side = cfg.block_cells as f64 * dx;
+    let body: &mut BodySpec = s
+        .bodies
+        .first_mut()
+        .ok_or_else(|| anyhow::anyhow!("the growth study's scene has no body"))?;
+    body.fill = Fill::Box {
+        min: (lo_xz, lo_y, lo_xz),
+        max: (lo_xz + side, lo_y + side, lo_xz + side),
+    };
+    Ok(s)
+}
+
+/// Runs one configuration in this process: one untimed step, then one timed step.
+pub fn run_config(base: &Scene, cfg: &GrowthConfig) -> anyhow::Result<GrowthResult> {
+    let scene = growth_scene(base, cfg)?;
+    let mut sim = Simulation::new(
+        &scene,
+        &SimOptions {
+            threads: cfg.threads,
+            ..Default::default()
+        },
+    )?;
+    let particles = sim.particle_count();
+    let n = cfg.cells;
+    sim.step()?;
+    let before = sim.clock().total_substeps;
+    let t = Instant::now();
+    sim.step()?;
+    let wall_s = t.elapsed().as_secs_f64();
+    let substeps_timed = sim.clock().total_substeps - before;
+    let per = wall_s / substeps_timed as f64;
+    Ok(GrowthResult {
+        config: cfg.clone(),
+        particles,
+        nodes: n * n * n,
+        threads: sim.threads(),
+        substeps_timed,
+        wall_s,
+        seconds_per_substep: per,
+        ns_per_particle_substep: per / particles as f64 * 1e9,
+        particle_substeps_per_s: particles as f64 / per,
+        peak_rss_bytes: peak_rss_bytes(),
+    })
+}
+
+/// Largest over smallest throughput of the particle series: the "flat within 20 %"
+/// asks for at most 1.2.
+pub fn particle_series_spread(results: &[GrowthResult]) -> Option<f64> {
+    let rates: Vec<f64> = results
+        .iter()
+        .filter(|r| r.config.series == Series::Particles)
+        .map(|r| r.particle_substeps_per_s)
+        .collect();
+    let hi = rates.iter().copied().fold(f64::NAN, f64::max);
+    let lo = rates.iter().copied().fold(f64::NAN, f64::min);
+    (rates.len() >= 2).then_some(hi / lo)
+}
+
+/// Where the study writes.
+pub struct GrowthOutputs {
+    pub results: PathBuf,
+    pub csv: PathBuf,
+    pub svg: PathBuf,
+}
+
+impl GrowthOutputs {
+    pub fn in_dir(dir: &Path) -> GrowthOutputs {
+        GrowthOutputs {
+            results: dir.join("growth.json"),
+            csv: dir.join("growth.csv"),
+            svg: dir.join("growth.svg"),
+        }
+    }
+}
+
+pub fn csv(results: &[GrowthResult]) -> String {
+    let mut s = String::from(
+        "series,cells,particles,nodes,threads,substeps_timed,seconds_per_substep,ns_per_particle_substep,particle_substeps_per_s,peak_rss_mb\n",
+    );
+    for r in results {
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{:.6e},{:.2},{:.4e},{:.1}\n",
+            match r.config.series {
+                Series::Particles => "particles",
+                Series::Grid => "grid",
+            },
+            r.config.cells,
+            r.particles,
+            r.nodes,
+            r.threads,
+            r.substeps_timed,
+            r.seconds_per_substep,
+            r.ns_per_particle_substep,
+            r.particle_substeps_per_s,
+            r.peak_rss_bytes as f64 / 1e6
+        ));
+    }
+    s
+}
+
+/// Writes the results, the CSV and the figure, each atomically.
+pub fn write_outputs(out: &GrowthOutputs, results: &[GrowthResult]) -> anyhow::Result<()> {
+    write_atomic(
+        &out.results,
+        serde_json::to_string_pretty(results)?.as_bytes(),
+    )?;
+    write_atomic(&out.csv, csv(results).as_bytes())?;
+    svg(&out.svg, results)
+}
+
+/// Two log–log panels: time per substep against the particle count (particle series) and
+/// against the grid nodes (grid series), each with the time per particle-substep beside it.
+fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
+    let mut text = String::new();
+    {
+        let root = SVGBackend::with_string(&mut text, (1100, 480)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let root = root.titled(
+            "powderlab: time per substep (sand_box variants, 2×2×2 particles per cell)",
+            ("sans-serif", 20),
+        )?;
+        let panels = root.split_evenly((1, 2));
+        for (area, (series, xlabel)) in panels.iter().zip([
+            (Series::Particles, "particles (grid refined with the block)"),
+            (Series::Grid, "grid nodes (54,872 particles)"),
+        ]) {
+            let pts: Vec<(f64, f64, f64)> = results
+                .iter()
+                .filter(|r| r.config.series == series)
+                .map(|r| {
+                    let x = match series {
+                        Series::Particles => r.particles as f64,
+                        Series::Grid => r.nodes as f64,
+                    };
+                    (x, r.seconds_per_substep * 1e3, r.ns_per_particle_substep)
+                })
+                .collect();
+            if pts.is_empty() {
+                continue;
+            }
+            let (x0, x1) = pts
+                .iter()
+                .fold((f64::MAX, 0.0f64), |a, p| (a.0.min(p.0), a.1.max(p.0)));
+            let ys = pts.iter().flat_map(|p| [p.1, p.2]);
+            let (y0, y1) = ys.fold((f64::MAX, 0.0f64), |a, y| (a.0.min(y), a.1.max(y)));
+            let mut chart = ChartBuilder::on(area)
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(60)
+                .build_cartesian_2d(
+                    (x0 / 1.5..x1 * 1.5).log_scale(),
+                    (y0 / 2.0..y1 * 2.0).log_scale(),
+                )?;
+            chart
+                .configure_mesh()
+                .x_desc(xlabel)
+                .y_desc("ms per substep / ns per particle-substep")
+                .x_label_formatter(&|v| format!("{v:.0e}"))
+                .y_label_formatter(&|v| format!("{v:.3}"))
+                .draw()?;
+            let blue = RGBColor(31, 119, 180);
+            let orange = RGBColor(255, 127, 14);
+            chart
+                .draw_series(LineSeries::new(
+                    pts.iter().map(|p| (p.0, p.1)),
+                    blue.stroke_width(2),
+                ))?
+                .label("ms per substep")
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], blue));
+            chart.draw_series(
+                pts.iter()
+                    .map(|p| Circle::new((p.0, p.1), 3, blue.filled())),
+            )?;
+            chart
+                .draw_series(LineSeries::new(
+                    pts.iter().map(|p| (p.0, p.2)),
+                    orange.stroke_width(2),
+                ))?
+                .label("ns per particle-substep")
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], orange));
+            chart.draw_series(
+                pts.iter()
+                    .map(|p| Circle::new((p.0, p.2), 3, orange.filled())),
+            )?;
+            chart
+                .configure_series_labels()
+                .position(SeriesLabelPosition::UpperLeft)
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .draw()?;
+        }
+        root.present()?;
+    }
+    write_atomic(path, text.as_bytes())?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The variants put (2·block)³ particles on the lattice, less those the box tool starts
+    /// in (the grid series' 32-cell block is 0.59 m wide and reaches the tool), and keep the
+    /// strict stability check's substep count growing with the resolution.
+    #[test]
+    fn scenes_hold_the_planned_particles() {
+        let base =
+            Scene::load(concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/sand_box.ron")).unwrap();
+        for cfg in plan(false, Some(1)).into_iter().filter(|c| c.cells <= 48) {
+            let s = growth_scene(&base, &cfg).unwrap();
+            assert_eq!(
+                s.simulation.substeps,
+                (BASE_SUBSTEPS * cfg.cells).div_ceil(BASE_CELLS)
+            );
+            let mut sim = Simulation::new(&s, &SimOptions::default()).unwrap();
+            let lattice = (2 * cfg.block_cells).pow(3);
+            let n = sim.particle_count();
+            match cfg.series {
+                Series::Particles => assert_eq!(n, lattice, "{cfg:?}"),
+                Series::Grid => assert!(n <= lattice && n * 1000 >= lattice * 998, "{cfg:?}: {n}"),
+            }
+        }
+    }
+}
