@@ -1,7 +1,9 @@
-//! The forward substep does not allocate per particle or per node: after the first step has
-//! sized every buffer, a substep's allocations are a few small lists (the bodies and colliders
-//! sorted into scene order), whatever the particle count. A counting allocator measures them.
-//! (Allocation counts, not timings: nothing here depends on the machine's speed.)
+//! Substeps do not allocate per particle or per node: after the first step has sized every
+//! buffer, a forward substep's allocations are a few small lists (the bodies and colliders
+//! sorted into scene order), whatever the particle count; a backward pass's memory grows per
+//! step by the step-start state its tape keeps, and by nothing per substep. A counting
+//! allocator measures them. (Allocation counts, not timings: nothing here depends on the
+//! machine's speed.)
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -60,8 +62,29 @@ fn allocations_per_substep(scene: &str, threads: usize) -> (f64, f64) {
     )
 }
 
+/// Bytes allocated by a backward pass over `steps` steps of `sand_box` on 2 threads, and the
+/// bytes of one step-start state on its tape.
+fn backward_bytes(steps: usize) -> (usize, usize) {
+    let path = format!("{}/scenes/sand_box.ron", env!("CARGO_MANIFEST_DIR"));
+    let sc = powderlab::scene::Scene::load(path).unwrap();
+    let mut sim = powderlab::sim::Simulation::new(
+        &sc,
+        &powderlab::sim::SimOptions {
+            threads: Some(2),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let snapshot = powderlab::adjoint::tape::snapshot(&mut sim.world).bytes();
+    let loss = powderlab::gradcheck::scene_loss(&sc);
+    let b0 = BYTES.load(Ordering::SeqCst);
+    let tape = powderlab::adjoint::tape::Tape::Every(steps);
+    powderlab::adjoint::tape::gradient(&mut sim, steps, &loss, tape).unwrap();
+    (BYTES.load(Ordering::SeqCst) - b0, snapshot)
+}
+
 #[test]
-fn a_substep_allocates_nothing_per_particle_or_node() {
+fn substeps_allocate_nothing_per_particle_or_node() {
     // One test, so no other test's allocations run between the counts.
     for (scene, threads) in [
         ("sand_box.ron", 1),
@@ -75,4 +98,14 @@ fn a_substep_allocates_nothing_per_particle_or_node() {
             "{scene} on {threads} threads allocates {bytes} bytes per substep ({calls} calls)"
         );
     }
+    // One more step of the backward pass (20 substeps) adds its step-start state to the tape
+    // (14.5 MB) and 0.3 MB of small lists; one particle-sized buffer per substep would add
+    // 20 × 1.3 MB.
+    let ((two, snapshot), (three, _)) = (backward_bytes(2), backward_bytes(3));
+    let extra = three as f64 - two as f64;
+    eprintln!("backward: one more step allocates {extra} bytes; a step-start state is {snapshot}");
+    assert!(
+        extra <= snapshot as f64 + (1 << 20) as f64,
+        "one more backward step allocates {extra} bytes, the step-start state is {snapshot}"
+    );
 }

@@ -30,6 +30,7 @@ fn diag_of(m: DMat3) -> DVec3 {
 pub fn constitutive_model_adjoint<M: Material>(
     params: Res<SimParams>,
     grid: Res<Grid>,
+    mut partial: Local<Vec<MaterialAdj>>,
     mut bodies: Query<(
         &M,
         &Body,
@@ -48,49 +49,52 @@ pub fn constitutive_model_adjoint<M: Material>(
         let m = body.particle_mass;
         let n = svd.u.len();
         let g_svd = &mut *g_svd;
-        let mut per_particle = vec![MaterialAdj::default(); n];
-        per_particle
+        // One partial sum of the material gradient per chunk of REDUCE_CHUNK particles, in
+        // particle order, into a buffer kept between substeps.
+        partial.clear();
+        partial.resize(n.div_ceil(REDUCE_CHUNK), MaterialAdj::default());
+        let r = REDUCE_CHUNK;
+        partial
             .par_iter_mut()
             .zip(
                 g_svd
                     .u
-                    .par_iter_mut()
-                    .zip(g_svd.s.par_iter_mut().zip(g_svd.v.par_iter_mut())),
+                    .par_chunks_mut(r)
+                    .zip(g_svd.s.par_chunks_mut(r).zip(g_svd.v.par_chunks_mut(r))),
             )
-            .zip(g_a.0.par_iter_mut().zip(g_f.0.par_iter_mut()))
-            .zip(g_ft.0.par_iter_mut().zip(g_c.0.par_iter_mut()))
+            .zip(g_a.0.par_chunks_mut(r).zip(g_f.0.par_chunks_mut(r)))
+            .zip(g_ft.0.par_chunks_mut(r).zip(g_c.0.par_chunks_mut(r)))
             .enumerate()
-            .for_each(|(i, (((pm, (gu, (gs, gv))), (ga, gf)), (gft, gc)))| {
-                let (u, s, v) = (svd.u[i], svd.s[i], svd.v[i]);
-                let (s_new, tau_p) = mat.update(s, &mut 0.0);
-                // A = m C + k U D Uᵀ
-                *gc += *ga * m;
-                let g_tau = *ga * k;
-                let sym = g_tau + g_tau.transpose();
-                *gu += sym * compose(u, tau_p, DMat3::IDENTITY);
-                let g_d = diag_of(u.transpose() * g_tau * u);
-                // F' = U diag(σ') Vᵀ, or F' = F_tmp.
-                let g_s_new = match s_new {
-                    Some(sn) => {
-                        *gu += *gf * compose(v, sn, DMat3::IDENTITY);
-                        *gv += gf.transpose() * compose(u, sn, DMat3::IDENTITY);
-                        diag_of(u.transpose() * *gf * v)
-                    }
-                    None => {
-                        *gft += *gf;
-                        DVec3::ZERO
-                    }
-                };
-                let (g_sigma, g_m) = mat.update_adj(s, 0.0, g_s_new, g_d);
-                *gs += g_sigma;
-                *pm = g_m;
-                *ga = DMat3::ZERO;
-                *gf = DMat3::ZERO;
+            .for_each(|(ci, (((pm, (gu, (gs, gv))), (ga, gf)), (gft, gc)))| {
+                for j in 0..gu.len() {
+                    let i = ci * r + j;
+                    let (u, s, v) = (svd.u[i], svd.s[i], svd.v[i]);
+                    let (s_new, tau_p) = mat.update(s, &mut 0.0);
+                    // A = m C + k U D Uᵀ
+                    gc[j] += ga[j] * m;
+                    let g_tau = ga[j] * k;
+                    let sym = g_tau + g_tau.transpose();
+                    gu[j] += sym * compose(u, tau_p, DMat3::IDENTITY);
+                    let g_d = diag_of(u.transpose() * g_tau * u);
+                    // F' = U diag(σ') Vᵀ, or F' = F_tmp.
+                    let g_s_new = match s_new {
+                        Some(sn) => {
+                            gu[j] += gf[j] * compose(v, sn, DMat3::IDENTITY);
+                            gv[j] += gf[j].transpose() * compose(u, sn, DMat3::IDENTITY);
+                            diag_of(u.transpose() * gf[j] * v)
+                        }
+                        None => {
+                            gft[j] += gf[j];
+                            DVec3::ZERO
+                        }
+                    };
+                    let (g_sigma, g_m) = mat.update_adj(s, 0.0, g_s_new, g_d);
+                    gs[j] += g_sigma;
+                    *pm = add_material(*pm, &g_m);
+                    ga[j] = DMat3::ZERO;
+                    gf[j] = DMat3::ZERO;
+                }
             });
-        let partial: Vec<MaterialAdj> = per_particle
-            .par_chunks(REDUCE_CHUNK)
-            .map(|c| c.iter().fold(MaterialAdj::default(), add_material))
-            .collect();
         *g_mat = partial.iter().fold(*g_mat, add_material);
     }
 }

@@ -21,7 +21,7 @@ use rayon::prelude::*;
 pub fn p2g_adjoint(
     params: Res<SimParams>,
     grid: Res<Grid>,
-    adj: Res<GridAdj>,
+    mut adj: ResMut<GridAdj>,
     mut bodies: Query<(
         &Body,
         &SubstepStart,
@@ -34,19 +34,25 @@ pub fn p2g_adjoint(
     let m_min = params.empty_node_mass;
     let dx = grid.dx;
     let inv_dx = 1.0 / dx;
-    // Node adjoints of momentum and mass from v = p/m.
-    let (g_p, g_m): (Vec<DVec3>, Vec<f64>) = adj
-        .velocity
-        .par_iter()
+    // Node adjoints of momentum and mass from v = p/m, into the grid adjoint's own buffers (no
+    // allocation per substep). Nothing else writes them, so they are set, not accumulated.
+    let GridAdj {
+        mass: g_m,
+        momentum: g_p,
+        velocity: g_v,
+    } = &mut *adj;
+    g_p.par_iter_mut()
+        .zip(g_m.par_iter_mut())
+        .zip(g_v.par_iter())
         .zip(grid.mass.par_iter().zip(grid.momentum.par_iter()))
-        .map(|(gv, (&m, &p))| {
-            if m > m_min {
+        .for_each(|(((gp, gm), gv), (&m, &p))| {
+            (*gp, *gm) = if m > m_min {
                 (*gv / m, -gv.dot(p) / (m * m))
             } else {
                 (DVec3::ZERO, 0.0)
-            }
-        })
-        .unzip();
+            };
+        });
+    let (g_p, g_m) = (&*g_p, &*g_m);
     for (body, start, aff, mut gx, mut gv, mut ga) in &mut bodies {
         let m = body.particle_mass;
         gx.0.par_iter_mut()
