@@ -109,9 +109,11 @@ enum Command {
         #[arg(long)]
         report: Option<PathBuf>,
     },
-    /// Accuracy against cost. `error-vs-time` sweeps the grid resolution, the particles per cell
+    /// Accuracy and cost. `error-vs-time` sweeps the grid resolution, the particles per cell
     /// and the substeps on the column collapse and the transport task, and writes
-    /// results.json, error_vs_time.csv, error_vs_time.md and error_vs_time.svg to --out.
+    /// results.json, error_vs_time.csv, error_vs_time.md and error_vs_time.svg to --out;
+    /// `growth` times a substep of `sand_box` variants against the particle count and the grid
+    /// and writes growth.json, growth.csv and growth.svg.
     Study(StudyArgs),
 }
 
@@ -461,28 +463,35 @@ struct StudyArgs {
     config: Option<String>,
 }
 
-/// Runs one study configuration in a child process (this executable with `--config`).
+/// Runs one configuration of `study` in a child process (this executable with `--config`), so
+/// that its peak memory is its own, and reads the result it prints as its last line.
+fn run_in_child<C: serde::Serialize, R: serde::de::DeserializeOwned>(
+    exe: &std::path::Path,
+    study: &str,
+    cfg: &C,
+) -> Result<R> {
+    let out = std::process::Command::new(exe)
+        .args(["study", study, "--config"])
+        .arg(serde_json::to_string(cfg)?)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .with_context(|| format!("cannot start {}", exe.display()))?;
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        bail!(
+            "{} ({})",
+            err.lines().last().unwrap_or("no message").trim(),
+            out.status
+        );
+    }
+    let text = String::from_utf8_lossy(&out.stdout);
+    serde_json::from_str(text.lines().last().unwrap_or(""))
+        .context("the configuration's child printed no result")
+}
+
+/// One error-vs-time configuration in a child process; a failure becomes a failed result.
 fn study_child(exe: &std::path::Path, cfg: &study::Config) -> study::ConfigResult {
-    let run = || -> Result<study::ConfigResult> {
-        let out = std::process::Command::new(exe)
-            .args(["study", "error-vs-time", "--config"])
-            .arg(serde_json::to_string(cfg)?)
-            .stdin(std::process::Stdio::null())
-            .output()
-            .with_context(|| format!("cannot start {}", exe.display()))?;
-        if !out.status.success() {
-            let err = String::from_utf8_lossy(&out.stderr);
-            bail!(
-                "{} ({})",
-                err.lines().last().unwrap_or("no message").trim(),
-                out.status
-            );
-        }
-        let text = String::from_utf8_lossy(&out.stdout);
-        serde_json::from_str(text.lines().last().unwrap_or(""))
-            .context("the configuration's child printed no result")
-    };
-    run().unwrap_or_else(|e| study::failed(cfg, format!("{e:#}")))
+    run_in_child(exe, "error-vs-time", cfg).unwrap_or_else(|e| study::failed(cfg, format!("{e:#}")))
 }
 
 fn study_cmd(a: StudyArgs) -> Result<()> {
@@ -588,24 +597,9 @@ fn growth_cmd(a: StudyArgs) -> Result<()> {
     let mut results = Vec::new();
     for cfg in &plan {
         pb.set_message(format!("{:?} {} cells", cfg.series, cfg.cells));
-        let out = std::process::Command::new(&exe)
-            .args(["study", "growth", "--config"])
-            .arg(serde_json::to_string(cfg)?)
-            .stdin(std::process::Stdio::null())
-            .output()
-            .with_context(|| format!("cannot start {}", exe.display()))?;
-        if !out.status.success() {
-            let err = String::from_utf8_lossy(&out.stderr);
-            bail!(
-                "growth configuration {cfg:?} failed: {}",
-                err.lines().last().unwrap_or("no message").trim()
-            );
-        }
-        let text = String::from_utf8_lossy(&out.stdout);
-        results.push(
-            serde_json::from_str::<growth::GrowthResult>(text.lines().last().unwrap_or(""))
-                .context("the configuration's child printed no result")?,
-        );
+        let r: growth::GrowthResult = run_in_child(&exe, "growth", cfg)
+            .with_context(|| format!("growth configuration {cfg:?} failed"))?;
+        results.push(r);
         // Everything measured so far is on disk, whenever the study is stopped.
         growth::write_outputs(&outputs, &results)?;
         pb.inc(1);
