@@ -228,6 +228,11 @@ pub fn write_outputs(out: &GrowthOutputs, results: &[GrowthResult]) -> anyhow::R
     svg(&out.svg, results)
 }
 
+/// A plotted configuration: (particles or grid nodes, ms per substep, ns per particle-substep).
+type Point = (f64, f64, f64);
+/// A plotted quantity: its legend label, its colour and its value at a point.
+type Quantity = (&'static str, RGBColor, fn(&Point) -> f64);
+
 /// Two log–log panels: time per substep against the particle count (particle series) and
 /// against the grid nodes (grid series), each with the time per particle-substep beside it.
 fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
@@ -254,7 +259,7 @@ fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
                 SeriesLabelPosition::UpperLeft,
             ),
         ]) {
-            let pts: Vec<(f64, f64, f64)> = results
+            let pts: Vec<Point> = results
                 .iter()
                 .filter(|r| r.config.series == series)
                 .map(|r| {
@@ -288,30 +293,23 @@ fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
                 .x_label_formatter(&|v| format!("{v:.0e}"))
                 .y_label_formatter(&|v| format!("{v:.3}"))
                 .draw()?;
-            let blue = RGBColor(31, 119, 180);
-            let orange = RGBColor(255, 127, 14);
-            chart
-                .draw_series(LineSeries::new(
-                    pts.iter().map(|p| (p.0, p.1)),
-                    blue.stroke_width(2),
-                ))?
-                .label("ms per substep")
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], blue));
-            chart.draw_series(
-                pts.iter()
-                    .map(|p| Circle::new((p.0, p.1), 3, blue.filled())),
-            )?;
-            chart
-                .draw_series(LineSeries::new(
-                    pts.iter().map(|p| (p.0, p.2)),
-                    orange.stroke_width(2),
-                ))?
-                .label("ns per particle-substep")
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], orange));
-            chart.draw_series(
-                pts.iter()
-                    .map(|p| Circle::new((p.0, p.2), 3, orange.filled())),
-            )?;
+            let quantities: [Quantity; 2] = [
+                ("ms per substep", RGBColor(31, 119, 180), |p| p.1),
+                ("ns per particle-substep", RGBColor(255, 127, 14), |p| p.2),
+            ];
+            for (label, colour, y) in quantities {
+                chart
+                    .draw_series(LineSeries::new(
+                        pts.iter().map(|p| (p.0, y(p))),
+                        colour.stroke_width(2),
+                    ))?
+                    .label(label)
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+                chart.draw_series(
+                    pts.iter()
+                        .map(|p| Circle::new((p.0, y(p)), 3, colour.filled())),
+                )?;
+            }
             chart
                 .configure_series_labels()
                 .position(corner)
