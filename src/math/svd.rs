@@ -25,6 +25,15 @@ const MAX_SWEEPS: usize = 12;
 /// An off-diagonal entry below this fraction of its diagonal pair is treated as zero.
 const OFF_DIAG_REL: f64 = 1e-18;
 
+/// Whether the Jacobi iteration on `A` (upper off-diagonal `a01, a02, a12`, diagonal
+/// `a00, a11, a22`) has converged: the off-diagonal is below 1e-17 of the diagonal, or zero.
+#[inline(always)]
+fn converged(a01: f64, a02: f64, a12: f64, a00: f64, a11: f64, a22: f64) -> bool {
+    let off = a01.abs() + a02.abs() + a12.abs();
+    let diag = a00.abs() + a11.abs() + a22.abs();
+    off <= 1e-17 * diag || off == 0.0
+}
+
 #[inline(always)]
 fn jacobi_rotate(a: &mut [[f64; 3]; 3], v: &mut [[f64; 3]; 3], p: usize, q: usize, r: usize) {
     let apq = a[p][q];
@@ -117,9 +126,7 @@ pub fn svd3_warm(f: DMat3, v0: DMat3) -> Svd3 {
     let mut a = to_rows(v0.transpose() * (f.transpose() * f) * v0);
     let mut v = to_rows(v0);
     for _ in 0..MAX_SWEEPS {
-        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
-        let diag = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
-        if off <= 1e-17 * diag || off == 0.0 {
+        if converged(a[0][1], a[0][2], a[1][2], a[0][0], a[1][1], a[2][2]) {
             break;
         }
         jacobi_rotate(&mut a, &mut v, 0, 1, 2);
@@ -289,9 +296,10 @@ fn svd3_warm_lanes_body(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES
     let mut active = [true; LANES];
     for _ in 0..MAX_SWEEPS {
         for (l, on) in active.iter_mut().enumerate() {
-            let off = a[0][1][l].abs() + a[0][2][l].abs() + a[1][2][l].abs();
-            let diag = a[0][0][l].abs() + a[1][1][l].abs() + a[2][2][l].abs();
-            *on = *on && !(off <= 1e-17 * diag || off == 0.0);
+            *on = *on
+                && !converged(
+                    a[0][1][l], a[0][2][l], a[1][2][l], a[0][0][l], a[1][1][l], a[2][2][l],
+                );
         }
         if !active.iter().any(|&on| on) {
             break;
