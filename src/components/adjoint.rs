@@ -59,7 +59,8 @@ pub struct MaterialAdj {
     pub friction_deg: f64,
 }
 
-/// Adjoints of the grid fields.
+/// Adjoints of the grid fields. `mass` and `momentum` are set by the P2G adjoint from
+/// `velocity` (`v = p/m`); `velocity` accumulates from G2P's adjoint and grid collision's.
 #[derive(Resource, Clone, Debug, Default)]
 pub struct GridAdj {
     pub mass: Vec<f64>,
