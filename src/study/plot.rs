@@ -35,19 +35,19 @@ const PANELS: [Panel; 8] = [
         case: Case::ColumnCollapse,
         quantity: "runout_ratio",
         against: Against::Reference,
-        title: "collapse: run-out (¼-cell layer front) vs finest",
+        title: "collapse: run-out (⅛-cell layer front) vs finest",
     },
     Panel {
         case: Case::ColumnCollapse,
         quantity: "runout_ratio",
         against: Against::Law,
-        title: "collapse: run-out (¼-cell layer) vs Lube et al. 2005",
+        title: "collapse: run-out (⅛-cell layer) vs Lube et al. 2005",
     },
     Panel {
         case: Case::ColumnCollapse,
         quantity: "runout_fixed_height_ratio",
         against: Against::Reference,
-        title: "collapse: run-out (1 mm layer front) vs finest",
+        title: "collapse: run-out (0.5 mm layer front) vs finest",
     },
     Panel {
         case: Case::ColumnCollapse,

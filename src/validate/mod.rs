@@ -294,7 +294,7 @@ pub fn collapse_scene(c: &Collapse) -> String {
     let predicted = lube_runout(c.aspect) + 1.0;
     let nx = wall * 2 + (2.0 * predicted * c.cells_across as f64).ceil() as usize + 8;
     let ny = wall * 2 + (h0 / dx).ceil() as usize + 4;
-    let nz = wall * 2 + 3;
+    let nz = wall * 2 + COLLAPSE_SLAB_CELLS - 1;
     let x0 = wall as f64 * dx;
     let y0 = wall as f64 * dx;
     let z0 = (wall - 1) as f64 * dx;
@@ -314,7 +314,7 @@ pub fn collapse_scene(c: &Collapse) -> String {
         phi = c.friction_deg,
         l0 = c.length,
         a = c.aspect,
-        depth = (nz - 2 * wall + 1) as f64 * dx,
+        depth = COLLAPSE_SLAB_CELLS as f64 * dx,
         mu = c.floor_friction,
         cfl = c.cfl,
         ppc = c.particles_per_cell,
@@ -324,6 +324,11 @@ pub fn collapse_scene(c: &Collapse) -> String {
 /// Wall cells of [`collapse_scene`]: the column leans on the left wall and stands on the floor,
 /// both at `COLLAPSE_WALL_CELLS·dx`.
 pub const COLLAPSE_WALL_CELLS: usize = 3;
+
+/// Depth of [`collapse_scene`]'s slab in cells: the z-gap between the walls' innermost node
+/// layers. A one-cell x-bin of the slab holds `COLLAPSE_SLAB_CELLS·ppc` particles per cell of
+/// height.
+pub const COLLAPSE_SLAB_CELLS: usize = 4;
 
 /// Particle positions of [`collapse_scene`] relative to the left wall and the floor, over L₀.
 pub fn normalised_deposit(x: &[DVec3], dx: f64, length: f64) -> Vec<DVec3> {
@@ -386,8 +391,10 @@ pub fn run_collapse(
 }
 
 /// Particles a one-cell bin needs to count as deposit in [`deposit_front`]: half a cell's worth
-/// (`⌈ppc/2⌉`, 4 at 8 particles per cell), i.e. a layer a quarter of a cell high across the slab's
-/// two-cell depth, whatever the particle count per cell.
+/// (`⌈ppc/2⌉`, 4 at 8 particles per cell), i.e. a layer an eighth of a cell high across the
+/// slab's [`COLLAPSE_SLAB_CELLS`]-cell depth, whatever the particle count per cell. (The slab was
+/// two cells deep, and this a quarter-cell layer, until it was made to fill the gap between the
+/// walls' node layers; the count was kept.)
 pub fn front_min_count(particles_per_cell: usize) -> usize {
     particles_per_cell.div_ceil(2)
 }
