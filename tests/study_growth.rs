@@ -35,7 +35,7 @@ fn quick_growth_study_measures_every_configuration_and_writes_its_files() {
         assert_eq!(r["threads"], 2);
         let per = r["seconds_per_substep"].as_f64().unwrap();
         let timed = r["substeps_timed"].as_u64().unwrap();
-        // One timed step of ⌈20·cells/48⌉ substeps.
+        // The quick plan times one step of ⌈20·cells/48⌉ substeps.
         assert_eq!(timed, (20 * cells).div_ceil(48));
         assert!(per > 0.0 && per.is_finite());
         let rate = r["particle_substeps_per_s"].as_f64().unwrap();
