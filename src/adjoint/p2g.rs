@@ -65,10 +65,18 @@ pub fn p2g_adjoint(
                 let st = stencil((xp - grid.origin) / dx);
                 let dw = st.derivs();
                 let [bi, bj, bk] = st.base;
-                let (mut sv, mut sa, mut sx) = (DVec3::ZERO, DMat3::ZERO, DVec3::ZERO);
+                // `Σ_i w_ip·p̄_i` serves both v̄_p (times m) and the last term of x̄_p (times
+                // −A_pᵀ), so the node loop accumulates it once instead of a matrix product per
+                // node.
+                // `m·v_p + A_p·d_ip` is affine in the node's integer offset: its value at the
+                // stencil's first node plus whole multiples of `A_p`'s columns times dx.
+                let ad = [a.x_axis * dx, a.y_axis * dx, a.z_axis * dx];
+                let t0 = mv - a * (st.fx * dx);
+                let (mut wp, mut sa, mut sx) = (DVec3::ZERO, DMat3::ZERO, DVec3::ZERO);
                 for ia in 0..3 {
                     for ib in 0..3 {
                         let row = grid.index(bi + ia, bj + ib, bk);
+                        let t_row = t0 + ad[0] * ia as f64 + ad[1] * ib as f64;
                         for ic in 0..3 {
                             let node = row + ic;
                             let gp = g_p[node];
@@ -79,15 +87,17 @@ pub fn p2g_adjoint(
                             let w = st.weight(ia, ib, ic);
                             let grad_w = st.weight_grad(&dw, ia, ib, ic, inv_dx);
                             let d = st.offset(ia, ib, ic, dx);
-                            sv += gp * (w * m);
-                            sa += DMat3::from_cols(gp * (w * d.x), gp * (w * d.y), gp * (w * d.z));
-                            sx += grad_w * ((mv + a * d).dot(gp) + m * gm) - a.transpose() * gp * w;
+                            let wgp = gp * w;
+                            wp += wgp;
+                            sa += DMat3::from_cols(wgp * d.x, wgp * d.y, wgp * d.z);
+                            let t = t_row + ad[2] * ic as f64;
+                            sx += grad_w * (t.dot(gp) + m * gm);
                         }
                     }
                 }
-                *gv += sv;
+                *gv += wp * m;
                 *ga += sa;
-                *gx += sx;
+                *gx += sx - a.transpose() * wp;
             });
     }
 }
