@@ -443,9 +443,9 @@ struct StudyArgs {
     /// Output folder.
     #[arg(long, default_value = "study")]
     out: PathBuf,
-    /// The transport task's scene.
-    #[arg(long, default_value = "scenes/powder_transport.ron")]
-    scene: PathBuf,
+    /// The transport task's scene (error-vs-time; default scenes/powder_transport.ron).
+    #[arg(long)]
+    scene: Option<PathBuf>,
     /// A seconds-long version of the study (tests and CI).
     #[arg(long)]
     quick: bool,
@@ -510,7 +510,11 @@ fn study_cmd(a: StudyArgs) -> Result<()> {
         println!("{}", serde_json::to_string(&r)?);
         return Ok(());
     }
-    let plan = study::plan(a.quick, &a.scene, a.threads)?;
+    let scene = a
+        .scene
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("scenes/powder_transport.ron"));
+    let plan = study::plan(a.quick, &scene, a.threads)?;
     // Fail fast on a scene the transport configurations cannot use.
     if let Some(cfg) = plan.iter().find(|c| c.case == study::Case::PowderTransport) {
         powderlab::optim::problem::Problem::new(study::transport_scene(cfg)?, study::TAPE_BUDGET)?;
@@ -574,6 +578,17 @@ fn study_cmd(a: StudyArgs) -> Result<()> {
 /// `powderlab study growth` (`powderlab::study::growth`): each configuration in a child process.
 fn growth_cmd(a: StudyArgs) -> Result<()> {
     use powderlab::study::growth;
+    if let Some(s) = &a.scene {
+        bail!(
+            "study growth: --scene {} is not used: the growth study runs its own variants of scenes/sand_box.ron (the Taichi reference's scene); leave --scene out",
+            s.display()
+        );
+    }
+    if a.resume {
+        bail!(
+            "study growth: --resume is not supported: the study reruns every configuration (about 3 minutes); leave --resume out"
+        );
+    }
     let scene = PathBuf::from("scenes/sand_box.ron");
     let base = powderlab::scene::Scene::load(&scene)?;
     if let Some(c) = &a.config {

@@ -69,3 +69,23 @@ fn unknown_study_is_refused_by_name() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("growht") && err.contains("growth"), "{err}");
 }
+
+/// The growth study runs its own `sand_box` variants and reruns everything: `--scene` and
+/// `--resume` are refused with a message naming them, not silently ignored.
+#[test]
+fn growth_study_refuses_the_options_it_does_not_use() {
+    for args in [
+        &["--scene", "scenes/powder_transport.ron"][..],
+        &["--resume"][..],
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .args(["study", "growth", "--quick"])
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(!o.status.success(), "{args:?} was accepted");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(args[0]) && err.contains("leave"), "{err}");
+    }
+}
