@@ -3,9 +3,9 @@
 use crate::adjoint::loss::CupRegion;
 use crate::components::*;
 use crate::math::return_map::{hencky, hencky_energy};
-use crate::math::svd::{svd3, svd3_warm_lanes, LANES};
+use crate::math::svd::{svd3_warm_group, LANES};
 use bevy_ecs::prelude::*;
-use glam::{DMat3, DVec3};
+use glam::DMat3;
 
 /// Summary numbers of one frame.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -65,21 +65,15 @@ pub fn frame_metrics(world: &mut World, target: Option<&str>) -> FrameMetrics {
 }
 
 /// `Σ_p ψ(ln σ(F_p))` over `fs`, in particle order. The singular values come from the lane SVD
-/// four particles at a time (bitwise equal to [`svd3`], which takes the remainder), so the sum
+/// four particles at a time (`svd3_warm_group`, bitwise equal to the scalar SVD), so the sum
 /// is the same as particle by particle with the scalar SVD, at a fraction of the cost: the
 /// energy budget runs this every step of `simulate`.
 fn elastic_energy_sum(fs: &[DMat3], mu: f64, lambda: f64) -> f64 {
-    let psi = |s: DVec3| hencky_energy(hencky(s), mu, lambda);
-    let mut chunks = fs.chunks_exact(LANES);
     let mut sum = 0.0;
-    for c in &mut chunks {
-        let f: &[DMat3; LANES] = c.try_into().expect("chunks_exact gives LANES matrices");
-        for r in svd3_warm_lanes(f, &[DMat3::IDENTITY; LANES]) {
-            sum += psi(r.s);
-        }
-    }
-    for f in chunks.remainder() {
-        sum += psi(svd3(*f).s);
+    for group in fs.chunks(LANES) {
+        svd3_warm_group(group, &[DMat3::IDENTITY; LANES][..group.len()], |_, d| {
+            sum += hencky_energy(hencky(d.s), mu, lambda);
+        });
     }
     sum
 }
@@ -167,6 +161,8 @@ impl EnergyMonitor {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::svd::svd3;
+    use glam::DVec3;
 
     fn frame(ke: f64, pe: f64, el: f64) -> FrameMetrics {
         FrameMetrics {

@@ -279,6 +279,28 @@ pub fn svd3_warm_lanes(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES]
     svd3_warm_lanes_body(f, v0)
 }
 
+/// [`svd3_warm`] of each of up to [`LANES`] matrices, `f[i]` warm-started from `v0[i]`, handed to
+/// `out(i, svd)`: a full group goes through [`svd3_warm_lanes`], a shorter one (the end of a
+/// particle array) one matrix at a time; the results are bitwise the same either way.
+#[inline(always)]
+pub fn svd3_warm_group(f: &[DMat3], v0: &[DMat3], mut out: impl FnMut(usize, Svd3)) {
+    match (
+        <&[DMat3; LANES]>::try_from(f),
+        <&[DMat3; LANES]>::try_from(v0),
+    ) {
+        (Ok(f), Ok(v0)) => {
+            for (l, d) in svd3_warm_lanes(f, v0).into_iter().enumerate() {
+                out(l, d);
+            }
+        }
+        _ => {
+            for (i, (&f, &v0)) in f.iter().zip(v0).enumerate() {
+                out(i, svd3_warm(f, v0));
+            }
+        }
+    }
+}
+
 /// [`svd3_warm_lanes_body`] compiled for AVX2 (four f64 lanes per register). Rust never fuses a
 /// multiply and an add on its own, so the results are the same bits as the baseline build's.
 #[cfg(target_arch = "x86_64")]
