@@ -17,36 +17,6 @@ use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-/// `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight from particle `p`. It is affine
-/// in the node's integer offset `o` (`d_ip = (o − fx)·dx`), so it is built from its value at
-/// the stencil's first node plus whole multiples of `k·C̄_p`'s columns times dx, not from a
-/// matrix product per node.
-struct PullBack {
-    first: DVec3,
-    cols: [DVec3; 3],
-}
-
-impl PullBack {
-    #[inline(always)]
-    fn new(g_v: DVec3, g_c: DMat3, k: f64, fx: DVec3, dx: f64) -> PullBack {
-        let kc = g_c * k;
-        PullBack {
-            first: g_v - kc * (fx * dx),
-            cols: [kc.x_axis * dx, kc.y_axis * dx, kc.z_axis * dx],
-        }
-    }
-
-    #[inline(always)]
-    fn row(&self, ia: usize, ib: usize) -> DVec3 {
-        self.first + self.cols[0] * ia as f64 + self.cols[1] * ib as f64
-    }
-
-    #[inline(always)]
-    fn node(&self, row: DVec3, ic: usize) -> DVec3 {
-        row + self.cols[2] * ic as f64
-    }
-}
-
 #[allow(clippy::type_complexity)]
 pub fn g2p_adjoint(
     grid: Res<Grid>,
@@ -77,7 +47,8 @@ pub fn g2p_adjoint(
             let (g_v, g_c) = (gv.0[i], gc.0[i]);
             // The last term sums to `−k·C̄ᵀ·Σ_i w_ip·v_i`: the loop accumulates `Σ w·v` and
             // multiplies by the matrix once.
-            let t = PullBack::new(g_v, g_c, k, st.fx, dx);
+            // `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight.
+            let t = st.affine(g_v, g_c * k, dx);
             let (mut sx, mut wv) = (DVec3::ZERO, DVec3::ZERO);
             for ia in 0..3 {
                 for ib in 0..3 {
@@ -107,7 +78,7 @@ pub fn g2p_adjoint(
                 let p = p as usize;
                 let st = stencil((start.x[p] - grid.origin) / dx);
                 let [bi, bj, bk] = st.base;
-                let t = PullBack::new(gv.0[p], gc.0[p], k, st.fx, dx);
+                let t = st.affine(gv.0[p], gc.0[p] * k, dx);
                 for ia in 0..3 {
                     for ib in 0..3 {
                         let row = ((bi + ia - plane0) * n[1] + bj + ib) * n[2] + bk;

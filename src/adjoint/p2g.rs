@@ -67,16 +67,13 @@ pub fn p2g_adjoint(
                 let [bi, bj, bk] = st.base;
                 // `Σ_i w_ip·p̄_i` serves both v̄_p (times m) and the last term of x̄_p (times
                 // −A_pᵀ), so the node loop accumulates it once instead of a matrix product per
-                // node.
-                // `m·v_p + A_p·d_ip` is affine in the node's integer offset: its value at the
-                // stencil's first node plus whole multiples of `A_p`'s columns times dx.
-                let ad = [a.x_axis * dx, a.y_axis * dx, a.z_axis * dx];
-                let t0 = mv - a * (st.fx * dx);
+                // node; `m·v_p + A_p·d_ip` is built along the stencil's rows.
+                let t = st.affine(mv, a, dx);
                 let (mut wp, mut sa, mut sx) = (DVec3::ZERO, DMat3::ZERO, DVec3::ZERO);
                 for ia in 0..3 {
                     for ib in 0..3 {
                         let row = grid.index(bi + ia, bj + ib, bk);
-                        let t_row = t0 + ad[0] * ia as f64 + ad[1] * ib as f64;
+                        let t_row = t.row(ia, ib);
                         for ic in 0..3 {
                             let node = row + ic;
                             let gp = g_p[node];
@@ -90,8 +87,7 @@ pub fn p2g_adjoint(
                             let wgp = gp * w;
                             wp += wgp;
                             sa += DMat3::from_cols(wgp * d.x, wgp * d.y, wgp * d.z);
-                            let t = t_row + ad[2] * ic as f64;
-                            sx += grad_w * (t.dot(gp) + m * gm);
+                            sx += grad_w * (t.node(t_row, ic).dot(gp) + m * gm);
                         }
                     }
                 }

@@ -10,7 +10,7 @@
 //! and their derivatives with respect to `fx` are `fx − 1.5`, `−2(fx − 1)` and `fx − 0.5`.
 //! The weights sum to 1 and their derivatives sum to 0 for every `fx` (partition of unity).
 
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 
 /// Stencil of one particle: base node, fractional offset and per-axis weights.
 #[derive(Clone, Copy, Debug)]
@@ -120,11 +120,71 @@ impl Stencil {
             w[0][a] * w[1][b] * dw[2][c],
         ) * inv_dx
     }
+
+    /// `b + M·d_ip` over this stencil's nodes ([`Stencil::offset`]), built as an
+    /// [`OffsetAffine`].
+    #[inline(always)]
+    pub fn affine(&self, b: DVec3, m: DMat3, dx: f64) -> OffsetAffine {
+        OffsetAffine {
+            first: b - m * (self.fx * dx),
+            cols: [m.x_axis * dx, m.y_axis * dx, m.z_axis * dx],
+        }
+    }
+}
+
+/// `b + M·d_ip` at the nodes of a stencil, with `d_ip = (o − fx)·dx` and `o` the node's integer
+/// offset: affine in `o`, so it is the value at the first node plus whole multiples of `M`'s
+/// columns times dx, a few additions per node instead of a matrix product. The adjoint
+/// transfers use it for `m·v_p + A_p·d_ip` (P2G) and `v̄_p + k·C̄_p·d_ip` (G2P).
+#[derive(Clone, Copy, Debug)]
+pub struct OffsetAffine {
+    first: DVec3,
+    cols: [DVec3; 3],
+}
+
+impl OffsetAffine {
+    /// The value at node `(a, b, 0)`, the start of a row along z.
+    #[inline(always)]
+    pub fn row(&self, a: usize, b: usize) -> DVec3 {
+        self.first + self.cols[0] * a as f64 + self.cols[1] * b as f64
+    }
+
+    /// The value at node `(a, b, c)` from its row's [`OffsetAffine::row`].
+    #[inline(always)]
+    pub fn node(&self, row: DVec3, c: usize) -> DVec3 {
+        row + self.cols[2] * c as f64
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Round-off bound of `b + M·d` built from columns, against the matrix product, for O(1)
+    /// entries: a few ulps of the largest term.
+    const AFFINE_TOL: f64 = 1e-14;
+
+    #[test]
+    fn offset_affine_equals_the_matrix_product_at_every_node() {
+        let st = stencil(DVec3::new(3.7, 5.2, 4.95));
+        let b = DVec3::new(0.3, -1.2, 0.8);
+        let m = DMat3::from_cols_array(&[0.9, -0.4, 0.2, 1.1, 0.5, -0.7, 0.3, 0.6, -1.3]);
+        let dx = 0.5;
+        let t = st.affine(b, m, dx);
+        for a in 0..3 {
+            for bb in 0..3 {
+                let row = t.row(a, bb);
+                for c in 0..3 {
+                    let want = b + m * st.offset(a, bb, c, dx);
+                    let got = t.node(row, c);
+                    assert!(
+                        (got - want).abs().max_element() < AFFINE_TOL,
+                        "{got} vs {want}"
+                    );
+                }
+            }
+        }
+    }
 
     /// Round-off bound for sums of three O(1) terms in f64.
     const SUM_TOL: f64 = 1e-15;
