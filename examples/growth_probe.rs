@@ -2,10 +2,10 @@
 //! step, on 2 threads: shows why the study times several steps rather than one.
 //!
 //! `cargo run --release --example growth_probe -- [CELLS,CELLS,...] [STEPS]` (default: the 27,
-//! 86 and 126-cell configurations, 5 steps after the untimed first).
+//! 86 and 126-cell configurations, 5 steps after the untimed first). CELLS are those of the
+//! study's particles series (27, 34, 43, 54, 68, 86, 108, 126).
 use powderlab::scene::Scene;
-use powderlab::sim::{SimOptions, Simulation};
-use powderlab::study::growth::{growth_scene, GrowthConfig, Series, TIMED_STEPS};
+use powderlab::study::growth::{plan, simulation, Series, TIMED_STEPS};
 use std::time::Instant;
 
 fn main() -> anyhow::Result<()> {
@@ -18,21 +18,15 @@ fn main() -> anyhow::Result<()> {
         .collect::<Result<_, _>>()?;
     let steps: usize = args.get(2).map_or(Ok(TIMED_STEPS), |s| s.parse())?;
     let base = Scene::load("scenes/sand_box.ron")?;
+    let series: Vec<_> = plan(false, Some(2))
+        .into_iter()
+        .filter(|c| c.series == Series::Particles)
+        .collect();
     for n in cells {
-        let cfg = GrowthConfig {
-            series: Series::Particles,
-            cells: n,
-            block_cells: (0.4 * n as f64).round() as usize,
-            threads: Some(2),
-            timed_steps: steps,
+        let Some(cfg) = series.iter().find(|c| c.cells == n) else {
+            anyhow::bail!("{n} cells is not in the study's particles series");
         };
-        let mut sim = Simulation::new(
-            &growth_scene(&base, &cfg)?,
-            &SimOptions {
-                threads: cfg.threads,
-                ..Default::default()
-            },
-        )?;
+        let mut sim = simulation(&base, cfg, false)?;
         let particles = sim.particle_count() as f64;
         sim.step()?;
         let mut per_step = Vec::new();

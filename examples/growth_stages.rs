@@ -4,39 +4,27 @@
 //!
 //! `cargo run --release --example growth_stages`
 use powderlab::scene::Scene;
-use powderlab::sim::{SimOptions, Simulation};
-use powderlab::study::growth::{growth_scene, GrowthConfig, Series};
-fn main() {
-    let base = Scene::load("scenes/sand_box.ron").unwrap();
-    for cells in [48usize, 160] {
-        let cfg = GrowthConfig {
-            series: Series::Grid,
-            cells,
-            block_cells: 19,
-            threads: Some(2),
-            timed_steps: powderlab::study::growth::TIMED_STEPS,
-        };
-        let s = growth_scene(&base, &cfg).unwrap();
-        let mut sim = Simulation::new(
-            &s,
-            &SimOptions {
-                threads: Some(2),
-                stage_timers: true,
-                ..Default::default()
-            },
-        )
-        .unwrap();
-        sim.step().unwrap();
+use powderlab::study::growth::{plan, simulation, Series};
+
+fn main() -> anyhow::Result<()> {
+    let base = Scene::load("scenes/sand_box.ron")?;
+    for cfg in plan(false, Some(2))
+        .into_iter()
+        .filter(|c| c.series == Series::Grid && [48, 160].contains(&c.cells))
+    {
+        let mut sim = simulation(&base, &cfg, true)?;
+        sim.step()?;
         let before: Vec<(&str, f64)> = sim.stage_seconds();
         let n0 = sim.clock().total_substeps;
         for _ in 0..cfg.timed_steps {
-            sim.step().unwrap();
+            sim.step()?;
         }
         let n = (sim.clock().total_substeps - n0) as f64;
-        print!("{cells} cells:");
+        print!("{} cells:", cfg.cells);
         for ((name, t1), (_, t0)) in sim.stage_seconds().iter().zip(&before) {
             print!(" {name} {:.2}", (t1 - t0) / n * 1e3);
         }
         println!(" (ms per substep)");
     }
+    Ok(())
 }

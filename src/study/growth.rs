@@ -143,16 +143,25 @@ pub fn growth_scene(base: &Scene, cfg: &GrowthConfig) -> anyhow::Result<Scene> {
     Ok(s)
 }
 
-/// Runs one configuration in this process: one untimed step, then `timed_steps` timed steps.
-pub fn run_config(base: &Scene, cfg: &GrowthConfig) -> anyhow::Result<GrowthResult> {
-    let scene = growth_scene(base, cfg)?;
-    let mut sim = Simulation::new(
-        &scene,
+/// The simulation of a configuration, on its threads, with per-stage timers if asked.
+pub fn simulation(
+    base: &Scene,
+    cfg: &GrowthConfig,
+    stage_timers: bool,
+) -> anyhow::Result<Simulation> {
+    Ok(Simulation::new(
+        &growth_scene(base, cfg)?,
         &SimOptions {
             threads: cfg.threads,
+            stage_timers,
             ..Default::default()
         },
-    )?;
+    )?)
+}
+
+/// Runs one configuration in this process: one untimed step, then `timed_steps` timed steps.
+pub fn run_config(base: &Scene, cfg: &GrowthConfig) -> anyhow::Result<GrowthResult> {
+    let mut sim = simulation(base, cfg, false)?;
     let particles = sim.particle_count();
     let n = cfg.cells;
     sim.step()?;
