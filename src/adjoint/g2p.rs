@@ -42,28 +42,17 @@ pub fn g2p_adjoint(
         gx.0.par_iter_mut().enumerate().for_each(|(i, gx)| {
             let xp = start.x[i];
             let st = stencil((xp - grid.origin) / dx);
-            let dw = st.derivs();
             let [bi, bj, bk] = st.base;
             let (g_v, g_c) = (gv.0[i], gc.0[i]);
-            // The last term sums to `−k·C̄ᵀ·Σ_i w_ip·v_i`: the loop accumulates `Σ w·v` and
-            // multiplies by the matrix once.
-            // `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight.
+            // `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight, is affine in the node
+            // offset; `Σ ∇w·v_i·(v̄_p + k·C̄_p·d)` and `Σ w·v_i` are contracted one axis at a
+            // time, and the last term is `−k·C̄ᵀ·Σ w·v_i`, one matrix product per particle.
             let t = st.affine(g_v, g_c * k, dx);
-            let (mut sx, mut wv) = (DVec3::ZERO, DVec3::ZERO);
-            for ia in 0..3 {
-                for ib in 0..3 {
-                    let row = grid.index(bi + ia, bj + ib, bk);
-                    let t_row = t.row(ia, ib);
-                    for ic in 0..3 {
-                        let vi = grid.velocity[row + ic];
-                        let w = st.weight(ia, ib, ic);
-                        let grad_w = st.weight_grad(&dw, ia, ib, ic, inv_dx);
-                        sx += grad_w * vi.dot(t.node(t_row, ic));
-                        wv += vi * w;
-                    }
-                }
-            }
-            *gx += sx - g_c.transpose() * wv * k;
+            let sums = st.node_sums(inv_dx, |ia, ib, ic| {
+                let vi = grid.velocity[grid.index(bi + ia, bj + ib, bk) + ic];
+                (vi, vi.dot(t.node(t.row(ia, ib), ic)))
+            });
+            *gx += sums.grad_s - g_c.transpose() * sums.w_g * k;
         });
         // v̄_i: a scatter, slab-coloured exactly like P2G.
         let scatter_slab = |slab: usize, plane0: usize, out: &mut [DVec3]| {

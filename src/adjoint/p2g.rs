@@ -15,7 +15,7 @@
 use crate::components::*;
 use crate::math::kernel::stencil;
 use bevy_ecs::prelude::*;
-use glam::{DMat3, DVec3};
+use glam::DVec3;
 use rayon::prelude::*;
 
 pub fn p2g_adjoint(
@@ -63,37 +63,19 @@ pub fn p2g_adjoint(
                 let mv = start.v[i] * m;
                 let a = aff.0[i];
                 let st = stencil((xp - grid.origin) / dx);
-                let dw = st.derivs();
                 let [bi, bj, bk] = st.base;
-                // `Σ_i w_ip·p̄_i` serves both v̄_p (times m) and the last term of x̄_p (times
-                // −A_pᵀ), so the node loop accumulates it once instead of a matrix product per
-                // node; `m·v_p + A_p·d_ip` is built along the stencil's rows.
+                // `m·v_p + A_p·d_ip` is affine in the node offset; the node sums `Σ w·p̄`,
+                // `Σ w·p̄·dᵀ` and `Σ ∇w·[(m·v_p + A_p·d)·p̄ + m·m̄]` are contracted one axis at a
+                // time. `Σ w·p̄` serves both v̄_p (times m) and the last term of x̄_p (times −A_pᵀ).
                 let t = st.affine(mv, a, dx);
-                let (mut wp, mut sa, mut sx) = (DVec3::ZERO, DMat3::ZERO, DVec3::ZERO);
-                for ia in 0..3 {
-                    for ib in 0..3 {
-                        let row = grid.index(bi + ia, bj + ib, bk);
-                        let t_row = t.row(ia, ib);
-                        for ic in 0..3 {
-                            let node = row + ic;
-                            let gp = g_p[node];
-                            let gm = g_m[node];
-                            if gp == DVec3::ZERO && gm == 0.0 {
-                                continue;
-                            }
-                            let w = st.weight(ia, ib, ic);
-                            let grad_w = st.weight_grad(&dw, ia, ib, ic, inv_dx);
-                            let d = st.offset(ia, ib, ic, dx);
-                            let wgp = gp * w;
-                            wp += wgp;
-                            sa += DMat3::from_cols(wgp * d.x, wgp * d.y, wgp * d.z);
-                            sx += grad_w * (t.node(t_row, ic).dot(gp) + m * gm);
-                        }
-                    }
-                }
-                *gv += wp * m;
-                *ga += sa;
-                *gx += sx - a.transpose() * wp;
+                let sums = st.node_sums(inv_dx, |ia, ib, ic| {
+                    let node = grid.index(bi + ia, bj + ib, bk) + ic;
+                    let gp = g_p[node];
+                    (gp, t.node(t.row(ia, ib), ic).dot(gp) + m * g_m[node])
+                });
+                *gv += sums.w_g * m;
+                *ga += sums.w_g_d(st.fx, dx);
+                *gx += sums.grad_s - a.transpose() * sums.w_g;
             });
     }
 }
