@@ -69,28 +69,25 @@ pub fn constitutive_model_adjoint<M: Material>(
                 for j in 0..gu.len() {
                     let i = ci * r + j;
                     let (u, s, v) = (svd.u[i], svd.s[i], svd.v[i]);
-                    let (s_new, tau_p) = mat.update(s, &mut 0.0);
                     // A = m C + k U D Uᵀ
                     gc[j] += ga[j] * m;
                     let g_tau = ga[j] * k;
-                    let sym = g_tau + g_tau.transpose();
-                    gu[j] += sym * compose(u, tau_p, DMat3::IDENTITY);
                     let g_d = diag_of(u.transpose() * g_tau * u);
-                    // F' = U diag(σ') Vᵀ, or F' = F_tmp.
-                    let g_s_new = match s_new {
+                    // F' = U diag(σ') Vᵀ (the material ignores σ̄′ when F' = F_tmp).
+                    let g_s_new = diag_of(u.transpose() * gf[j] * v);
+                    // The material's adjoint also returns its forward update (σ′, τ_p).
+                    let out = mat.update_adj(s, 0.0, g_s_new, g_d);
+                    let sym = g_tau + g_tau.transpose();
+                    gu[j] += sym * compose(u, out.tau, DMat3::IDENTITY);
+                    match out.sigma_new {
                         Some(sn) => {
                             gu[j] += gf[j] * compose(v, sn, DMat3::IDENTITY);
                             gv[j] += gf[j].transpose() * compose(u, sn, DMat3::IDENTITY);
-                            diag_of(u.transpose() * gf[j] * v)
                         }
-                        None => {
-                            gft[j] += gf[j];
-                            DVec3::ZERO
-                        }
-                    };
-                    let (g_sigma, g_m) = mat.update_adj(s, 0.0, g_s_new, g_d);
-                    gs[j] += g_sigma;
-                    *pm = add_material(*pm, &g_m);
+                        None => gft[j] += gf[j],
+                    }
+                    gs[j] += out.g_sigma;
+                    *pm = add_material(*pm, &out.g_material);
                     ga[j] = DMat3::ZERO;
                     gf[j] = DMat3::ZERO;
                 }

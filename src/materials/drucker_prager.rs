@@ -1,7 +1,7 @@
 //! Drucker–Prager sand: StVK in Hencky strain with the Klár et al. 2016 return mapping and
 //! optional hardening. The maths is in `crate::math::return_map`.
 
-use super::{check_range, Material};
+use super::{check_range, Material, UpdateAdj};
 use crate::components::MaterialAdj;
 use crate::error::FieldError;
 use crate::math::return_map::{
@@ -40,6 +40,11 @@ struct Cache {
     mu: f64,
     lambda: f64,
     alpha: f64,
+    /// `(∂(μ, λ)/∂E, ∂(μ, λ)/∂ν)`: the parameter gradient is linear in `(∂L/∂μ, ∂L/∂λ)`, so
+    /// the per-particle adjoint applies these instead of evaluating [`lame_adj`].
+    d_lame: [(f64, f64); 2],
+    /// `∂α/∂φ` per degree, likewise (one sine and cosine per body, not per particle).
+    d_alpha: f64,
 }
 
 fn default_density() -> f64 {
@@ -67,10 +72,15 @@ impl DruckerPrager {
     /// Precomputes μ, λ and α; called once when the body is built.
     pub fn prepared(mut self) -> Self {
         let (mu, lambda) = lame(self.youngs_modulus, self.poisson_ratio);
+        let (e, nu) = (self.youngs_modulus, self.poisson_ratio);
+        let (d_mu_de, d_mu_dnu) = lame_adj(e, nu, 1.0, 0.0);
+        let (d_lambda_de, d_lambda_dnu) = lame_adj(e, nu, 0.0, 1.0);
         self.cache = Some(Cache {
             mu,
             lambda,
             alpha: dp_alpha(self.friction_deg),
+            d_lame: [(d_mu_de, d_lambda_de), (d_mu_dnu, d_lambda_dnu)],
+            d_alpha: dp_alpha_adj(self.friction_deg, 1.0),
         });
         self
     }
@@ -149,13 +159,7 @@ impl Material for DruckerPrager {
     /// Exact within each return-mapping case; one-sided at the case switches (see
     /// `dp_project_adj`). With hardening the friction angle's dependence on `q` is not
     /// differentiated (the backward pass refuses such scenes).
-    fn update_adj(
-        &self,
-        sigma: DVec3,
-        _q: f64,
-        g_sigma_new: DVec3,
-        g_tau: DVec3,
-    ) -> (DVec3, MaterialAdj) {
+    fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
         let c = self.cache.as_ref().expect("prepared");
         let eps = hencky(sigma);
         let (eps_new, _, _) = dp_project(eps, c.mu, c.lambda, c.alpha);
@@ -166,15 +170,17 @@ impl Material for DruckerPrager {
         let (g_eps, gm, gl, g_alpha) = dp_project_adj(eps, c.mu, c.lambda, c.alpha, g_eps_new, 0.0);
         g_mu += gm;
         g_lambda += gl;
-        let (g_e, g_nu) = lame_adj(self.youngs_modulus, self.poisson_ratio, g_mu, g_lambda);
-        (
-            hencky_adj(sigma, g_eps),
-            MaterialAdj {
-                youngs_modulus: g_e,
-                poisson_ratio: g_nu,
-                friction_deg: dp_alpha_adj(self.friction_deg, g_alpha),
+        let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = c.d_lame;
+        UpdateAdj {
+            sigma_new: Some(s_new),
+            tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
+            g_sigma: hencky_adj(sigma, g_eps),
+            g_material: MaterialAdj {
+                youngs_modulus: g_mu * mu_e + g_lambda * lambda_e,
+                poisson_ratio: g_mu * mu_nu + g_lambda * lambda_nu,
+                friction_deg: g_alpha * c.d_alpha,
             },
-        )
+        }
     }
 }
 
@@ -201,7 +207,11 @@ mod tests {
             DVec3::new(0.99, 0.99, 0.985),
         ] {
             let m = DruckerPrager::new(1e5, 0.3, 30.0).prepared();
-            let (g_s, g_m) = m.update_adj(sigma, 0.0, w_s, w_t);
+            let out = m.update_adj(sigma, 0.0, w_s, w_t);
+            // The update it returns is the forward's, bit for bit.
+            let (sn, tau) = m.update(sigma, &mut 0.0);
+            assert_eq!((out.sigma_new, out.tau), (sn, tau));
+            let (g_s, g_m) = (out.g_sigma, out.g_material);
             let close = |fd: f64, ad: f64, what: &str| {
                 assert!(
                     (fd - ad).abs() <= ADJ_REL_TOL * fd.abs().max(ad.abs()).max(1e-9),

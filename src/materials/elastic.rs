@@ -1,6 +1,6 @@
 //! Elastic solid: StVK in Hencky strain, no plasticity (no return mapping runs).
 
-use super::{check_range, Material};
+use super::{check_range, Material, UpdateAdj};
 use crate::components::MaterialAdj;
 use crate::error::FieldError;
 use crate::math::return_map::{
@@ -62,23 +62,20 @@ impl Material for Elastic {
     }
 
     /// Exact (away from the `SIGMA_MIN` clamp of the Hencky strain).
-    fn update_adj(
-        &self,
-        sigma: DVec3,
-        _q: f64,
-        _g_sigma_new: DVec3,
-        g_tau: DVec3,
-    ) -> (DVec3, MaterialAdj) {
+    fn update_adj(&self, sigma: DVec3, _q: f64, _g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
         let (mu, lambda) = self.lame();
-        let (g_eps, g_mu, g_lambda) = kirchhoff_principal_adj(hencky(sigma), mu, lambda, g_tau);
+        let eps = hencky(sigma);
+        let (g_eps, g_mu, g_lambda) = kirchhoff_principal_adj(eps, mu, lambda, g_tau);
         let (g_e, g_nu) = lame_adj(self.youngs_modulus, self.poisson_ratio, g_mu, g_lambda);
-        (
-            hencky_adj(sigma, g_eps),
-            MaterialAdj {
+        UpdateAdj {
+            sigma_new: None,
+            tau: kirchhoff_principal(eps, mu, lambda),
+            g_sigma: hencky_adj(sigma, g_eps),
+            g_material: MaterialAdj {
                 youngs_modulus: g_e,
                 poisson_ratio: g_nu,
                 friction_deg: 0.0,
             },
-        )
+        }
     }
 }

@@ -38,14 +38,22 @@ pub trait Material: Component + Clone + Send + Sync + 'static {
     fn update(&self, sigma: DVec3, q: &mut f64) -> (Option<DVec3>, DVec3);
     /// Adjoint of [`Material::update`] at `σ` (hardening not differentiated): given `∂L/∂σ′`
     /// (ignored when the update returns `None`) and `∂L/∂τ_p`, returns `∂L/∂σ` and the
-    /// material-parameter gradient.
-    fn update_adj(
-        &self,
-        sigma: DVec3,
-        q: f64,
-        g_sigma_new: DVec3,
-        g_tau: DVec3,
-    ) -> (DVec3, crate::components::MaterialAdj);
+    /// material-parameter gradient, together with the update itself (the adjoint stage needs
+    /// both, and one evaluation of the forward maths serves both).
+    fn update_adj(&self, sigma: DVec3, q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj;
+}
+
+/// What [`Material::update_adj`] returns.
+#[derive(Clone, Copy, Debug)]
+pub struct UpdateAdj {
+    /// The projected singular values, as [`Material::update`] returns them.
+    pub sigma_new: Option<DVec3>,
+    /// The principal Kirchhoff stresses, as [`Material::update`] returns them.
+    pub tau: DVec3,
+    /// `∂L/∂σ`.
+    pub g_sigma: DVec3,
+    /// The material-parameter gradient.
+    pub g_material: crate::components::MaterialAdj,
 }
 
 macro_rules! register_materials {
