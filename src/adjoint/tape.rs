@@ -171,7 +171,7 @@ impl SubstepRecord {
             .map(|&e| {
                 let n = world.get::<Position>(e).map_or(0, |x| x.0.len());
                 BodyRecord {
-                    start: SubstepStart::default(),
+                    start: SubstepStart::zeroed(n),
                     v_end: Vec::new(),
                     collision_input: Vec::new(),
                     trial: vec![DMat3::ZERO; n],
@@ -578,7 +578,7 @@ pub fn gradient(
                 v: vec![DMat3::ZERO; n],
             },
             P2gAffineAdj(vec![DMat3::ZERO; n]),
-            SubstepStart::default(),
+            SubstepStart::zeroed(n),
             ParticleCollisionInput::default(),
             MaterialAdj::default(),
         ));
@@ -612,9 +612,9 @@ pub fn gradient(
     let mut record_query = sim.world.query::<RecordQuery>();
     let mut start_query = sim.world.query::<(
         &Position,
-        &Velocity,
-        &AffineVelocity,
-        &DeformationGradient,
+        &mut Velocity,
+        &mut AffineVelocity,
+        &mut DeformationGradient,
         &mut SubstepStart,
         &mut ParticleCollisionInput,
     )>();
@@ -648,17 +648,35 @@ pub fn gradient(
             sim.world.resource_mut::<Clock>().substep = 0;
             for record in records.iter_mut() {
                 let clock = *sim.world.resource::<Clock>();
+                // The substep-start state: `x` is copied (advect updates it in place); `F`, `v`
+                // and `C` are taken by swapping buffers just before the stage that overwrites
+                // them without reading them (constitutive, G2P), so they are not copied.
                 let t = Instant::now();
-                for (x, v, c, f, mut st, _) in start_query.iter_mut(&mut sim.world) {
+                for (x, _, _, _, mut st, _) in start_query.iter_mut(&mut sim.world) {
                     st.x.clone_from(&x.0);
-                    st.v.clone_from(&v.0);
-                    st.c.clone_from(&c.0);
-                    st.f.clone_from(&f.0);
                 }
+                let (mut took_f, mut took_vc) = (false, false);
                 timing.add("recompute: substep starts", t.elapsed().as_secs_f64());
                 for (stage, s) in forward.iter_mut() {
                     let t = Instant::now();
                     match stage {
+                        Stage::Constitutive | Stage::G2p => {
+                            // Both write every particle's F (resp. v and C) without reading it.
+                            for (_, mut v, mut c, mut f, mut st, _) in
+                                start_query.iter_mut(&mut sim.world)
+                            {
+                                if *stage == Stage::Constitutive {
+                                    std::mem::swap(&mut f.0, &mut st.f);
+                                } else {
+                                    std::mem::swap(&mut v.0, &mut st.v);
+                                    std::mem::swap(&mut c.0, &mut st.c);
+                                }
+                            }
+                            took_f |= *stage == Stage::Constitutive;
+                            took_vc |= *stage == Stage::G2p;
+                            let world = &mut sim.world;
+                            run_in(&sim.pool, || s.run(world));
+                        }
                         Stage::ParticleCollision => {
                             for (_, v, _, _, _, mut input) in start_query.iter_mut(&mut sim.world) {
                                 input.0.clone_from(&v.0);
@@ -693,6 +711,18 @@ pub fn gradient(
                         }
                     }
                     timing.add_stage("recompute: ", *stage, t.elapsed().as_secs_f64());
+                }
+                // A plan without those stages left the fields as they were: copy them.
+                if !(took_f && took_vc) {
+                    for (_, v, c, f, mut st, _) in start_query.iter_mut(&mut sim.world) {
+                        if !took_f {
+                            st.f.clone_from(&f.0);
+                        }
+                        if !took_vc {
+                            st.v.clone_from(&v.0);
+                            st.c.clone_from(&c.0);
+                        }
+                    }
                 }
                 sim.finish_substep()?;
                 let t = Instant::now();

@@ -51,6 +51,19 @@ pub struct SubstepStart {
     pub f: Vec<DMat3>,
 }
 
+impl SubstepStart {
+    /// Zeroed buffers for `n` particles (the backward pass swaps them with the world's, so
+    /// they must have the body's length from the start).
+    pub fn zeroed(n: usize) -> Self {
+        Self {
+            x: vec![DVec3::ZERO; n],
+            v: vec![DVec3::ZERO; n],
+            c: vec![DMat3::ZERO; n],
+            f: vec![DMat3::ZERO; n],
+        }
+    }
+}
+
 /// `∂L/∂E`, `∂L/∂ν`, `∂L/∂φ` (per degree) of a body's material.
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct MaterialAdj {
