@@ -44,11 +44,15 @@ pub struct SimOptions {
     pub shared_pool: bool,
 }
 
-/// Runs `f` in `pool`, or in the caller's pool when there is none.
+/// Runs `f` in `pool`, or in the caller's pool when there is none: inline on a worker of the
+/// pool the caller runs on, else on a worker of rayon's global pool (the pool the caller's
+/// parallel loops would use). Either way `f` starts on a worker, so its parallel loops do not
+/// each hand their work from a foreign thread to the pool and sleep until it is done.
 pub(crate) fn run_in<R: Send>(pool: &Option<rayon::ThreadPool>, f: impl FnOnce() -> R + Send) -> R {
     match pool {
         Some(p) => p.install(f),
-        None => f(),
+        None if rayon::current_thread_index().is_some() => f(),
+        None => rayon::scope(|_| f()),
     }
 }
 

@@ -462,7 +462,8 @@ fn check_finite(
 /// Runs `steps` global steps from the simulation's current state and returns the gradients of
 /// `loss` on the final positions. The simulation is left at the final state.
 ///
-/// The whole pass runs on one of the simulation's own workers: each stage's parallel loops then
+/// The whole pass runs on one of the simulation's own workers (or, for a simulation in the
+/// caller's pool, on a worker of that pool): each stage's parallel loops then
 /// start from inside the pool, instead of the calling thread handing the world to the pool and
 /// sleeping until it is done, two thread switches per stage and about twenty stages per substep
 /// (forward recomputation, adjoint and finiteness checks). The numbers do not change: every
@@ -479,7 +480,7 @@ pub fn gradient(
             sim.pool = Some(pool);
             out
         }
-        None => gradient_in_pool(sim, steps, loss, tape),
+        None => crate::sim::run_in(&None, || gradient_in_pool(sim, steps, loss, tape)),
     }
 }
 
