@@ -47,6 +47,35 @@ struct Cache {
     d_alpha: f64,
 }
 
+/// The forward update at `σ` with cone coefficient `alpha`, with the intermediates its adjoint
+/// reads. One function for [`Material::update`] and [`Material::update_adj`], so the update the
+/// adjoint recomputes is the forward's bit for bit.
+struct Projected {
+    /// Hencky strain `ln σ`.
+    eps: DVec3,
+    /// The strain after the return mapping.
+    eps_new: DVec3,
+    /// Plastic increment of the hardening variable.
+    dq: f64,
+    /// `exp ε′`.
+    sigma_new: DVec3,
+    /// Principal Kirchhoff stresses of `ε′`.
+    tau: DVec3,
+}
+
+#[inline(always)]
+fn project(c: &Cache, sigma: DVec3, alpha: f64) -> Projected {
+    let eps = hencky(sigma);
+    let (eps_new, dq, _) = dp_project(eps, c.mu, c.lambda, alpha);
+    Projected {
+        eps,
+        eps_new,
+        dq,
+        sigma_new: DVec3::new(eps_new.x.exp(), eps_new.y.exp(), eps_new.z.exp()),
+        tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
+    }
+}
+
 fn default_density() -> f64 {
     1500.0
 }
@@ -149,11 +178,9 @@ impl Material for DruckerPrager {
                 dp_alpha(hardened_friction_deg([h0, h1, h2, h3], *q).clamp(0.0, 89.0))
             }
         };
-        let eps = hencky(sigma);
-        let (eps_new, dq, _) = dp_project(eps, c.mu, c.lambda, alpha);
-        *q += dq;
-        let s_new = DVec3::new(eps_new.x.exp(), eps_new.y.exp(), eps_new.z.exp());
-        (Some(s_new), kirchhoff_principal(eps_new, c.mu, c.lambda))
+        let p = project(c, sigma, alpha);
+        *q += p.dq;
+        (Some(p.sigma_new), p.tau)
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches (see
@@ -161,9 +188,13 @@ impl Material for DruckerPrager {
     /// differentiated (the backward pass refuses such scenes).
     fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
         let c = self.cache.as_ref().expect("prepared");
-        let eps = hencky(sigma);
-        let (eps_new, _, _) = dp_project(eps, c.mu, c.lambda, c.alpha);
-        let s_new = DVec3::new(eps_new.x.exp(), eps_new.y.exp(), eps_new.z.exp());
+        let Projected {
+            eps,
+            eps_new,
+            sigma_new: s_new,
+            tau,
+            ..
+        } = project(c, sigma, c.alpha);
         let (g_eps_k, mut g_mu, mut g_lambda) =
             kirchhoff_principal_adj(eps_new, c.mu, c.lambda, g_tau);
         let g_eps_new = g_sigma_new * s_new + g_eps_k;
@@ -173,7 +204,7 @@ impl Material for DruckerPrager {
         let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = c.d_lame;
         UpdateAdj {
             sigma_new: Some(s_new),
-            tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
+            tau,
             g_sigma: hencky_adj(sigma, g_eps),
             g_material: MaterialAdj {
                 youngs_modulus: g_mu * mu_e + g_lambda * lambda_e,
