@@ -79,3 +79,74 @@ impl Material for Elastic {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Central-difference step in σ and ν (O(1) quantities).
+    const FD_EPS: f64 = 1e-7;
+    /// Central-difference step in E (Pa; E is 1e5 here). τ is linear in E, so the difference
+    /// has no truncation error and a large step keeps cancellation small.
+    const FD_EPS_E: f64 = 10.0;
+    /// Adjoint against central differences in f64, away from the `SIGMA_MIN` clamp.
+    const ADJ_REL_TOL: f64 = 1e-6;
+
+    #[test]
+    fn update_adjoint_matches_central_differences() {
+        let w_t = DVec3::new(1e-5, 2e-5, -1.5e-5);
+        let loss = |m: &Elastic, s: DVec3| m.update(s, &mut 0.0).1.dot(w_t);
+        let base = Elastic {
+            density: 1000.0,
+            youngs_modulus: 1e5,
+            poisson_ratio: 0.3,
+        };
+        for sigma in [
+            DVec3::new(1.02, 0.97, 0.99),
+            DVec3::new(0.6, 1.4, 0.93),
+            DVec3::new(0.99, 0.99, 0.985),
+        ] {
+            let out = base.update_adj(sigma, 0.0, DVec3::ZERO, w_t);
+            // The update it returns is the forward's, bit for bit.
+            assert_eq!(
+                (out.sigma_new, out.tau),
+                base.update(sigma, &mut 0.0),
+                "σ {sigma:?}"
+            );
+            let close = |fd: f64, ad: f64, what: &str| {
+                assert!(
+                    (fd - ad).abs() <= ADJ_REL_TOL * fd.abs().max(ad.abs()).max(1e-12),
+                    "σ {sigma:?} {what}: fd {fd} ad {ad}"
+                );
+            };
+            for a in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[a] = FD_EPS;
+                close(
+                    (loss(&base, sigma + e) - loss(&base, sigma - e)) / (2.0 * FD_EPS),
+                    out.g_sigma[a],
+                    "σ",
+                );
+            }
+            let with = |e: f64, nu: f64| {
+                let m = Elastic {
+                    youngs_modulus: base.youngs_modulus + e,
+                    poisson_ratio: base.poisson_ratio + nu,
+                    ..base.clone()
+                };
+                loss(&m, sigma)
+            };
+            close(
+                (with(FD_EPS_E, 0.0) - with(-FD_EPS_E, 0.0)) / (2.0 * FD_EPS_E),
+                out.g_material.youngs_modulus,
+                "E",
+            );
+            close(
+                (with(0.0, FD_EPS) - with(0.0, -FD_EPS)) / (2.0 * FD_EPS),
+                out.g_material.poisson_ratio,
+                "ν",
+            );
+            assert_eq!(out.g_material.friction_deg, 0.0);
+        }
+    }
+}
