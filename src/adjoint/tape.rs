@@ -474,14 +474,7 @@ pub fn gradient(
     loss: &Loss,
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
-    match sim.pool.take() {
-        Some(pool) => {
-            let out = pool.install(|| gradient_in_pool(sim, steps, loss, tape));
-            sim.pool = Some(pool);
-            out
-        }
-        None => crate::sim::run_in(&None, || gradient_in_pool(sim, steps, loss, tape)),
-    }
+    sim.on_worker(|sim| gradient_in_pool(sim, steps, loss, tape))
 }
 
 fn gradient_in_pool(
@@ -624,6 +617,10 @@ fn gradient_in_pool(
             add_adjoint_stage(&mut s, st, &plan).then_some((st, s))
         })
         .collect();
+    // Whether the recomputation takes the substep-start F (and v, C) by swapping buffers before
+    // the stage that overwrites them, or must copy them because the plan lacks that stage.
+    let runs = |st: Stage| forward.iter().any(|(s, _)| *s == st);
+    let (swap_f, swap_vc) = (runs(Stage::Constitutive), runs(Stage::G2p));
     let mut collider_only = new_schedule();
     collider_only.add_systems(systems::grid_collision::collider_contact);
     let mut walls_only = new_schedule();
@@ -673,30 +670,40 @@ fn gradient_in_pool(
                 let clock = *sim.world.resource::<Clock>();
                 // The substep-start state: `x` is copied (advect updates it in place); `F`, `v`
                 // and `C` are taken by swapping buffers just before the stage that overwrites
-                // them without reading them (constitutive, G2P), so they are not copied.
+                // them without reading them (constitutive, G2P), so they are not copied, unless
+                // the plan lacks that stage.
                 let t = Instant::now();
-                for (x, _, _, _, mut st, _) in start_query.iter_mut(&mut sim.world) {
+                for (x, v, c, f, mut st, _) in start_query.iter_mut(&mut sim.world) {
                     st.x.clone_from(&x.0);
+                    if !swap_f {
+                        st.f.clone_from(&f.0);
+                    }
+                    if !swap_vc {
+                        st.v.clone_from(&v.0);
+                        st.c.clone_from(&c.0);
+                    }
                 }
-                let (mut took_f, mut took_vc) = (false, false);
                 timing.add("recompute: substep starts", t.elapsed().as_secs_f64());
                 for (stage, s) in forward.iter_mut() {
                     let t = Instant::now();
                     match stage {
-                        Stage::Constitutive | Stage::G2p => {
-                            // Both write every particle's F (resp. v and C) without reading it.
-                            for (_, mut v, mut c, mut f, mut st, _) in
+                        Stage::Constitutive => {
+                            // Writes every particle's F without reading it.
+                            for (_, _, _, mut f, mut st, _) in start_query.iter_mut(&mut sim.world)
+                            {
+                                std::mem::swap(&mut f.0, &mut st.f);
+                            }
+                            let world = &mut sim.world;
+                            run_in(&sim.pool, || s.run(world));
+                        }
+                        Stage::G2p => {
+                            // Writes every particle's v and C without reading them.
+                            for (_, mut v, mut c, _, mut st, _) in
                                 start_query.iter_mut(&mut sim.world)
                             {
-                                if *stage == Stage::Constitutive {
-                                    std::mem::swap(&mut f.0, &mut st.f);
-                                } else {
-                                    std::mem::swap(&mut v.0, &mut st.v);
-                                    std::mem::swap(&mut c.0, &mut st.c);
-                                }
+                                std::mem::swap(&mut v.0, &mut st.v);
+                                std::mem::swap(&mut c.0, &mut st.c);
                             }
-                            took_f |= *stage == Stage::Constitutive;
-                            took_vc |= *stage == Stage::G2p;
                             let world = &mut sim.world;
                             run_in(&sim.pool, || s.run(world));
                         }
@@ -734,18 +741,6 @@ fn gradient_in_pool(
                         }
                     }
                     timing.add_stage("recompute: ", *stage, t.elapsed().as_secs_f64());
-                }
-                // A plan without those stages left the fields as they were: copy them.
-                if !(took_f && took_vc) {
-                    for (_, v, c, f, mut st, _) in start_query.iter_mut(&mut sim.world) {
-                        if !took_f {
-                            st.f.clone_from(&f.0);
-                        }
-                        if !took_vc {
-                            st.v.clone_from(&v.0);
-                            st.c.clone_from(&c.0);
-                        }
-                    }
                 }
                 sim.finish_substep()?;
                 let t = Instant::now();
