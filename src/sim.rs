@@ -465,6 +465,16 @@ impl Simulation {
         self.world.resource::<SimParams>()
     }
 
+    /// Runs `f` with the simulation on a worker of its pool (its own, or the caller's for a
+    /// shared-pool simulation), the pool set aside meanwhile: every stage's [`run_in`] inside
+    /// then runs inline on that worker, for work of many stages such as a backward pass.
+    pub(crate) fn on_worker<R: Send>(&mut self, f: impl FnOnce(&mut Simulation) -> R + Send) -> R {
+        let pool = self.pool.take();
+        let out = run_in(&pool, || f(self));
+        self.pool = pool;
+        out
+    }
+
     /// One substep.
     pub fn substep(&mut self) -> Result<(), SimError> {
         let world = &mut self.world;
