@@ -17,10 +17,34 @@ use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
+/// Splits `xs` at `starts` (ascending offsets into it, the last one its length) into one
+/// slice per slab, then deals them into the even and the odd slabs, each list padded with empty
+/// slices to `len` entries (the number of grid chunks of its phase).
+fn slab_slices<'a, T>(
+    mut xs: &'a mut [T],
+    starts: &[u32],
+    len: [usize; 2],
+) -> [Vec<&'a mut [T]>; 2] {
+    let mut phases: [Vec<&'a mut [T]>; 2] =
+        [Vec::with_capacity(len[0]), Vec::with_capacity(len[1])];
+    for (s, w) in starts.windows(2).enumerate() {
+        let (head, tail) = std::mem::take(&mut xs).split_at_mut((w[1] - w[0]) as usize);
+        phases[s % 2].push(head);
+        xs = tail;
+    }
+    for (p, l) in phases.iter_mut().zip(len) {
+        // Every slab has its chunk: a slab past the grid's chunks would be dropped by the zip.
+        assert!(p.len() <= l, "more scatter slabs than grid chunks");
+        p.resize_with(l, || &mut []);
+    }
+    phases
+}
+
 #[allow(clippy::type_complexity)]
 pub fn g2p_adjoint(
     grid: Res<Grid>,
     mut adj: ResMut<GridAdj>,
+    mut scratch: Local<Vec<DVec3>>,
     mut bodies: Query<(
         &Body,
         &SubstepStart,
@@ -35,27 +59,25 @@ pub fn g2p_adjoint(
     let k = 4.0 * inv_dx * inv_dx;
     let n = grid.n;
     let pl = grid.plane_len();
+    let chunk = 2 * SLAB * pl;
+    let off = (SLAB * pl).min(adj.velocity.len());
+    let n_chunks = [
+        adj.velocity.len().div_ceil(chunk),
+        (adj.velocity.len() - off).div_ceil(chunk),
+    ];
     let mut bodies: Vec<_> = bodies.iter_mut().collect();
     bodies.sort_by_key(|b| b.0.index);
     for (_, start, order, mut gx, mut gv, mut gc) in bodies {
-        // x̄: a gather over the final grid velocity.
-        gx.0.par_iter_mut().enumerate().for_each(|(i, gx)| {
-            let xp = start.x[i];
-            let st = stencil((xp - grid.origin) / dx);
-            let [bi, bj, bk] = st.base;
-            let (g_v, g_c) = (gv.0[i], gc.0[i]);
-            // `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight, is affine in the node
-            // offset; `Σ ∇w·v_i·(v̄_p + k·C̄_p·d)` and `Σ w·v_i` are contracted one axis at a
-            // time, and the last term is `−k·C̄ᵀ·Σ w·v_i`, one matrix product per particle.
-            let t = st.affine(g_v, g_c * k, dx);
-            let sums = st.node_sums(inv_dx, |ia, ib, ic| {
-                let vi = grid.velocity[grid.index(bi + ia, bj + ib, bk) + ic];
-                (vi, vi.dot(t.node(t.row(ia, ib), ic)))
-            });
-            *gx += sums.grad_s - g_c.transpose() * sums.w_g * k;
-        });
-        // v̄_i: a scatter, slab-coloured exactly like P2G.
-        let scatter_slab = |slab: usize, plane0: usize, out: &mut [DVec3]| {
+        // One pass in P2G's slab order does both halves for each particle, from one stencil:
+        // the scatter of v̄_i, and the gather of x̄_p over the final grid velocity, whose result
+        // goes to `scratch` at the particle's place in that order (each particle has one place,
+        // so the slabs write disjoint slices) and is added to x̄ afterwards.
+        let gxs = &mut *scratch;
+        gxs.clear();
+        gxs.resize(order.order.len(), DVec3::ZERO);
+        let [even, odd] = slab_slices(gxs, &order.slab_start, n_chunks);
+        let (gvr, gcr) = (&gv.0, &gc.0);
+        let slab = |slab: usize, plane0: usize, out: &mut [DVec3], gx_out: &mut [DVec3]| {
             if slab + 1 >= order.slab_start.len() {
                 return;
             }
@@ -63,33 +85,39 @@ pub fn g2p_adjoint(
                 order.slab_start[slab] as usize,
                 order.slab_start[slab + 1] as usize,
             );
-            for &p in &order.order[s..e] {
+            for (&p, gx) in order.order[s..e].iter().zip(gx_out.iter_mut()) {
                 let p = p as usize;
                 let st = stencil((start.x[p] - grid.origin) / dx);
                 let [bi, bj, bk] = st.base;
-                let t = st.affine(gv.0[p], gc.0[p] * k, dx);
-                for ia in 0..3 {
-                    for ib in 0..3 {
-                        let row = ((bi + ia - plane0) * n[1] + bj + ib) * n[2] + bk;
-                        let t_row = t.row(ia, ib);
-                        for ic in 0..3 {
-                            let w = st.weight(ia, ib, ic);
-                            out[row + ic] += t.node(t_row, ic) * w;
-                        }
-                    }
-                }
+                let (g_v, g_c) = (gvr[p], gcr[p]);
+                // `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight, is affine in the
+                // node offset. The scatter adds it times the weight; `Σ ∇w·v_i·(v̄_p + k·C̄_p·d)`
+                // and `Σ w·v_i` are contracted one axis at a time, and the last term of x̄ is
+                // `−k·C̄ᵀ·Σ w·v_i`, one matrix product per particle.
+                let t = st.affine(g_v, g_c * k, dx);
+                let sums = st.node_sums(inv_dx, |ia, ib, ic| {
+                    let row = ((bi + ia - plane0) * n[1] + bj + ib) * n[2] + bk;
+                    let tn = t.node(t.row(ia, ib), ic);
+                    out[row + ic] += tn * st.weight(ia, ib, ic);
+                    let vi = grid.velocity[grid.index(bi + ia, bj + ib, bk) + ic];
+                    (vi, vi.dot(tn))
+                });
+                *gx = sums.grad_s - g_c.transpose() * sums.w_g * k;
             }
         };
-        let chunk = 2 * SLAB * pl;
         adj.velocity
             .par_chunks_mut(chunk)
+            .zip(even)
             .enumerate()
-            .for_each(|(c, out)| scatter_slab(2 * c, 2 * SLAB * c, out));
-        let off = (SLAB * pl).min(adj.velocity.len());
+            .for_each(|(c, (out, gxo))| slab(2 * c, 2 * SLAB * c, out, gxo));
         adj.velocity[off..]
             .par_chunks_mut(chunk)
+            .zip(odd)
             .enumerate()
-            .for_each(|(c, out)| scatter_slab(2 * c + 1, 2 * SLAB * c + SLAB, out));
+            .for_each(|(c, (out, gxo))| slab(2 * c + 1, 2 * SLAB * c + SLAB, out, gxo));
+        for (&p, g) in order.order.iter().zip(scratch.iter()) {
+            gx.0[p as usize] += *g;
+        }
         // G2P overwrote v and C: their adjoints are consumed.
         gv.0.par_iter_mut().for_each(|g| *g = DVec3::ZERO);
         gc.0.par_iter_mut().for_each(|g| *g = DMat3::ZERO);
