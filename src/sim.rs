@@ -362,6 +362,16 @@ impl Simulation {
                 0.0
             },
         });
+        // Static containers' contact with the grid nodes, found once (a table per container).
+        let mut containers = world.query::<(Entity, &Collider, &ColliderPose)>();
+        let tables: Vec<_> = containers
+            .iter(&world)
+            .filter(|(_, c, _)| c.kind == ColliderKind::Container)
+            .map(|(e, c, p)| (e, NodeContacts::build(c, p, &grid)))
+            .collect();
+        for (e, t) in tables {
+            world.entity_mut(e).insert(t);
+        }
         world.insert_resource(grid);
         world.insert_resource(DomainWalls {
             cells: s.walls.cells,

@@ -13,7 +13,7 @@
 
 use crate::components::*;
 use crate::math::contact::{band_weight, contact_response, contact_response_adj};
-use crate::systems::grid_collision::wall_normal;
+use crate::systems::grid_collision::{for_wall_nodes, wall_normal};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -132,7 +132,12 @@ pub fn collider_contact_adjoint(
     grid: Res<Grid>,
     input: Res<ColliderInputVelocity>,
     mut adj: ResMut<GridAdj>,
-    mut colliders: Query<(&Collider, &ColliderPose, &mut ColliderAdj)>,
+    mut colliders: Query<(
+        &Collider,
+        &ColliderPose,
+        Option<&NodeContacts>,
+        &mut ColliderAdj,
+    )>,
 ) {
     let mut cs: Vec<_> = colliders.iter_mut().collect();
     cs.sort_by_key(|c| c.0.index);
@@ -141,7 +146,10 @@ pub fn collider_contact_adjoint(
         "the backward driver refuses more than {MAX_COLLIDERS} colliders"
     );
     let m_min = params.empty_node_mass;
-    let view: Vec<(&Collider, &ColliderPose)> = cs.iter().map(|(c, p, _)| (*c, *p)).collect();
+    let view: Vec<(&Collider, &ColliderPose, Option<&NodeContacts>)> = cs
+        .iter()
+        .map(|(c, p, t, _)| (*c, *p, t.filter(|t| t.fits(p, &grid))))
+        .collect();
     let node = |idx: usize, g: &mut DVec3, acc: &mut ChunkAdj| {
         if grid.mass[idx] <= m_min {
             return;
@@ -150,13 +158,8 @@ pub fn collider_contact_adjoint(
         let mut hits = [(0usize, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO, 0.0); MAX_COLLIDERS];
         let mut count = 0;
         let mut v = input.0[idx];
-        for (ci, (c, pose)) in view.iter().enumerate() {
-            let reach = c.bounding_radius + c.band;
-            if (x - pose.pose.translation).length_squared() > reach * reach {
-                continue;
-            }
-            let (phi, normal) = pose.sdf(&c.shape, x);
-            if phi < c.band {
+        for (ci, &(c, pose, table)) in view.iter().enumerate() {
+            if let Some((phi, normal)) = node_contact(c, pose, table, idx, x) {
                 let vb = pose.velocity_at(x);
                 hits[count] = (ci, v, normal, vb, phi);
                 let r = contact_response(v, vb, normal, c.contact, c.friction);
@@ -166,7 +169,7 @@ pub fn collider_contact_adjoint(
             }
         }
         for &(ci, vin, normal, vb, phi) in hits[..count].iter().rev() {
-            let (c, pose) = view[ci];
+            let (c, pose, _) = view[ci];
             // v′ = v + w(φ)·(r − v): r̄ = w·v̄′, v̄ = (1 − w)·v̄′ + (∂r/∂v)ᵀ·r̄, φ̄ = w′·(r − v)·v̄′.
             let (w, dw) = band_weight(phi, c.band, c.soft_band);
             let g_out = *g;
@@ -207,7 +210,7 @@ pub fn collider_contact_adjoint(
             acc
         })
         .collect();
-    add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, a)| &mut **a));
+    add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, _, a)| &mut **a));
 }
 
 pub fn domain_walls_adjoint(
@@ -218,31 +221,28 @@ pub fn domain_walls_adjoint(
 ) {
     let n = grid.n;
     let cells = walls.cells;
-    adj.velocity
-        .par_iter_mut()
-        .enumerate()
-        .for_each(|(idx, g)| {
-            let coord = [idx / (n[1] * n[2]), (idx / n[2]) % n[1], idx % n[2]];
-            let mut normals = [DVec3::ZERO; 3];
-            let mut vin = [DVec3::ZERO; 3];
-            let mut v = input.0[idx];
-            let mut count = 0;
-            for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
-                normals[count] = normal;
-                vin[count] = v;
-                v = contact_response(v, DVec3::ZERO, normal, walls.mode, walls.friction);
-                count += 1;
-            }
-            for k in (0..count).rev() {
-                *g = contact_response_adj(
-                    vin[k],
-                    DVec3::ZERO,
-                    normals[k],
-                    walls.mode,
-                    walls.friction,
-                    *g,
-                )
-                .v;
-            }
-        });
+    for_wall_nodes(&mut adj.velocity, n, cells, |coord, g| {
+        let idx = grid.index(coord[0], coord[1], coord[2]);
+        let mut normals = [DVec3::ZERO; 3];
+        let mut vin = [DVec3::ZERO; 3];
+        let mut v = input.0[idx];
+        let mut count = 0;
+        for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
+            normals[count] = normal;
+            vin[count] = v;
+            v = contact_response(v, DVec3::ZERO, normal, walls.mode, walls.friction);
+            count += 1;
+        }
+        for k in (0..count).rev() {
+            *g = contact_response_adj(
+                vin[k],
+                DVec3::ZERO,
+                normals[k],
+                walls.mode,
+                walls.friction,
+                *g,
+            )
+            .v;
+        }
+    });
 }

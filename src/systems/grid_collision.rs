@@ -17,9 +17,12 @@ use rayon::prelude::*;
 pub fn collider_contact(
     params: Res<SimParams>,
     mut grid: ResMut<Grid>,
-    colliders: Query<(&Collider, &ColliderPose)>,
+    colliders: Query<(&Collider, &ColliderPose, Option<&NodeContacts>)>,
 ) {
-    let mut cs: Vec<_> = colliders.iter().collect();
+    let mut cs: Vec<_> = colliders
+        .iter()
+        .map(|(c, p, t)| (c, p, t.filter(|t| t.fits(p, &grid))))
+        .collect();
     cs.sort_by_key(|c| c.0.index);
     let m_min = params.empty_node_mass;
     let g = &mut *grid;
@@ -36,13 +39,8 @@ pub fn collider_contact(
             let j = (idx / n[2]) % n[1];
             let i = idx / (n[1] * n[2]);
             let x = origin + DVec3::new(i as f64, j as f64, k as f64) * dx;
-            for (c, pose) in &cs {
-                let reach = c.bounding_radius + c.band;
-                if (x - pose.pose.translation).length_squared() > reach * reach {
-                    continue;
-                }
-                let (phi, normal) = pose.sdf(&c.shape, x);
-                if phi < c.band {
+            for &(c, pose, table) in &cs {
+                if let Some((phi, normal)) = node_contact(c, pose, table, idx, x) {
                     let r =
                         contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
                     let (w, _) = band_weight(phi, c.band, c.soft_band);
@@ -66,12 +64,36 @@ pub fn wall_normal(coord: [usize; 3], n: [usize; 3], cells: usize, a: usize) -> 
     Some(normal)
 }
 
+/// Calls `f(coord, node)` for every node of an x-major node array that lies in a wall layer,
+/// one x-plane per parallel task, without dividing flat indices (the integer divisions cost
+/// more than the response on the half of the nodes that are in no layer).
+#[inline(always)]
+pub fn for_wall_nodes<T: Send>(
+    nodes: &mut [T],
+    n: [usize; 3],
+    cells: usize,
+    f: impl Fn([usize; 3], &mut T) + Sync,
+) {
+    let in_layer = |c: usize, a: usize| c < cells || c + cells >= n[a];
+    nodes
+        .par_chunks_mut(n[1] * n[2])
+        .enumerate()
+        .for_each(|(i, plane)| {
+            for (j, row) in plane.chunks_mut(n[2]).enumerate() {
+                let edge = in_layer(i, 0) || in_layer(j, 1);
+                for (k, node) in row.iter_mut().enumerate() {
+                    if edge || in_layer(k, 2) {
+                        f([i, j, k], node);
+                    }
+                }
+            }
+        });
+}
+
 pub fn domain_walls(walls: Res<DomainWalls>, mut grid: ResMut<Grid>) {
-    let g = &mut *grid;
-    let n = g.n;
+    let n = grid.n;
     let cells = walls.cells;
-    g.velocity.par_iter_mut().enumerate().for_each(|(idx, v)| {
-        let coord = [idx / (n[1] * n[2]), (idx / n[2]) % n[1], idx % n[2]];
+    for_wall_nodes(&mut grid.velocity, n, cells, |coord, v| {
         for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
             *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
         }
