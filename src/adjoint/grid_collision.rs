@@ -38,8 +38,10 @@ pub struct ColliderAdj {
     pub angular: DVec3,
 }
 
-/// Nodes per chunk of the collider-gradient reduction (fixed, so the sum order is too).
-pub(crate) const REDUCE_CHUNK: usize = 4096;
+/// Nodes or particles per chunk of the collider-gradient reduction (fixed, so the sum order is
+/// too). Small enough that the default scene's 3,784 particles make several chunks: a single
+/// chunk ran the particle-collision adjoint on one thread.
+pub(crate) const REDUCE_CHUNK: usize = 512;
 
 /// Most colliders a node's response sequence is replayed for.
 pub const MAX_COLLIDERS: usize = 4;
