@@ -46,8 +46,10 @@ pub(crate) const REDUCE_CHUNK: usize = 512;
 /// Most colliders a node's response sequence is replayed for.
 pub const MAX_COLLIDERS: usize = 4;
 
+/// A collider's adjoints summed over one chunk of nodes or particles (a partial of
+/// [`ColliderAdj`]).
 #[derive(Clone, Copy, Default)]
-pub(crate) struct NodeAdj {
+pub struct NodeAdj {
     pub(crate) friction: f64,
     pub(crate) translation: DVec3,
     pub(crate) rotation: DVec3,
@@ -98,7 +100,7 @@ pub(crate) fn world_hessian(
 
 /// Per-collider adjoints accumulated over one chunk of [`REDUCE_CHUNK`] grid nodes or
 /// particles.
-pub(crate) type ChunkAdj = [NodeAdj; MAX_COLLIDERS];
+pub type ChunkAdj = [NodeAdj; MAX_COLLIDERS];
 
 /// Adds the chunks' collider adjoints, in chunk order, into the colliders' [`ColliderAdj`]:
 /// the chunks are fixed-size, so the sum order does not depend on the thread count.
@@ -134,6 +136,7 @@ pub fn collider_contact_adjoint(
     grid: Res<Grid>,
     input: Res<ColliderInputVelocity>,
     mut adj: ResMut<GridAdj>,
+    mut chunks: Local<Vec<ChunkAdj>>,
     mut colliders: Query<(
         &Collider,
         &ColliderPose,
@@ -200,18 +203,21 @@ pub fn collider_contact_adjoint(
             }
         }
     };
-    let chunks: Vec<ChunkAdj> = adj
-        .velocity
+    // One partial sum per chunk, into a buffer kept between substeps.
+    chunks.clear();
+    chunks.resize(
+        adj.velocity.len().div_ceil(REDUCE_CHUNK),
+        ChunkAdj::default(),
+    );
+    adj.velocity
         .par_chunks_mut(REDUCE_CHUNK)
+        .zip(chunks.par_iter_mut())
         .enumerate()
-        .map(|(c, gs)| {
-            let mut acc = ChunkAdj::default();
+        .for_each(|(c, (gs, acc))| {
             for (j, g) in gs.iter_mut().enumerate() {
-                node(c * REDUCE_CHUNK + j, g, &mut acc);
+                node(c * REDUCE_CHUNK + j, g, acc);
             }
-            acc
-        })
-        .collect();
+        });
     add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, _, a)| &mut **a));
 }
 

@@ -24,6 +24,7 @@ pub struct ParticleCollisionInput(pub Vec<DVec3>);
 pub fn particle_collision_adjoint(
     params: Res<SimParams>,
     grid: Res<Grid>,
+    mut chunks: Local<Vec<ChunkAdj>>,
     mut colliders: Query<(&Collider, &ColliderPose, &mut ColliderAdj)>,
     mut bodies: Query<(
         &Position,
@@ -75,18 +76,18 @@ pub fn particle_collision_adjoint(
                 }
             }
         };
-        let chunks: Vec<ChunkAdj> =
-            gv.0.par_chunks_mut(REDUCE_CHUNK)
-                .zip(gx.0.par_chunks_mut(REDUCE_CHUNK))
-                .enumerate()
-                .map(|(c, (gs, gxs))| {
-                    let mut acc = ChunkAdj::default();
-                    for (j, (g, gxi)) in gs.iter_mut().zip(gxs.iter_mut()).enumerate() {
-                        particle(c * REDUCE_CHUNK + j, g, gxi, &mut acc);
-                    }
-                    acc
-                })
-                .collect();
+        // One partial sum per chunk, into a buffer kept between substeps.
+        chunks.clear();
+        chunks.resize(gv.0.len().div_ceil(REDUCE_CHUNK), ChunkAdj::default());
+        gv.0.par_chunks_mut(REDUCE_CHUNK)
+            .zip(gx.0.par_chunks_mut(REDUCE_CHUNK))
+            .zip(chunks.par_iter_mut())
+            .enumerate()
+            .for_each(|(c, ((gs, gxs), acc))| {
+                for (j, (g, gxi)) in gs.iter_mut().zip(gxs.iter_mut()).enumerate() {
+                    particle(c * REDUCE_CHUNK + j, g, gxi, acc);
+                }
+            });
         add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, a)| &mut **a));
     }
 }
