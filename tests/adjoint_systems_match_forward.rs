@@ -8,6 +8,7 @@ use glam::{DMat3, DVec3};
 use powderlab::adjoint;
 use powderlab::adjoint::gravity::GravityAdj;
 use powderlab::adjoint::grid_collision::WallInputVelocity;
+use powderlab::adjoint::NonFiniteSeen;
 use powderlab::components::*;
 use powderlab::materials::drucker_prager::DruckerPrager;
 use powderlab::systems;
@@ -86,6 +87,7 @@ fn world(rng: &mut Rng) -> (World, Entity) {
     w.insert_resource(Clock::default());
     w.insert_resource(GridAdj::new(NG * NG * NG));
     w.insert_resource(GravityAdj::default());
+    w.insert_resource(NonFiniteSeen::default());
     w.insert_resource(DomainWalls {
         cells: 3,
         mode: ContactMode::Separate,
@@ -609,4 +611,89 @@ fn tool_move() {
     let ad =
         g.translation.dot(d[0]) + g.rotation.dot(d[1]) + (0..6).map(|k| gu[k] * du[k]).sum::<f64>();
     check("tool_move", fd, ad);
+}
+
+/// Each adjoint stage that writes particle fields raises [`NonFiniteSeen`] when it writes a
+/// non-finite value into one (the backward driver scans those fields, to name the particle,
+/// only then), and does not raise it on finite input: a NaN put into the adjoint a stage reads
+/// must come out flagged.
+#[test]
+fn stages_flag_the_non_finite_values_they_write() {
+    let flagged = |w: &mut World| w.resource::<NonFiniteSeen>().take();
+    let fresh = |seed: u64| {
+        let mut rng = Rng(seed);
+        let (mut w, e) = world(&mut rng);
+        w.run_system_once(systems::grid_reset::grid_reset).unwrap();
+        w.run_system_once(systems::p2g::p2g).unwrap();
+        w.run_system_once(systems::svd::svd).unwrap();
+        let x = w.get::<Position>(e).unwrap().0.clone();
+        let v = w.get::<Velocity>(e).unwrap().0.clone();
+        let f = w.get::<DeformationGradient>(e).unwrap().0.clone();
+        let c = w.get::<AffineVelocity>(e).unwrap().0.clone();
+        let mut st = w.get_mut::<SubstepStart>(e).unwrap();
+        (st.x, st.v, st.f, st.c) = (x, v, f, c);
+        (w, e, rng)
+    };
+    // (stage, how its input adjoint is set: finite, or with one NaN)
+    type Setup = fn(&mut World, Entity, &mut Rng, bool);
+    let cases: [(&str, Setup); 6] = [
+        ("advect", |w, e, rng, bad| {
+            let mut g = rng.vs(N);
+            if bad {
+                g[5].y = f64::NAN;
+            }
+            w.get_mut::<PositionAdj>(e).unwrap().0 = g;
+            w.run_system_once(adjoint::advect::advect_adjoint).unwrap();
+        }),
+        ("g2p", |w, e, rng, bad| {
+            let mut g = rng.vs(N);
+            if bad {
+                g[5].x = f64::NAN;
+            }
+            w.get_mut::<VelocityAdj>(e).unwrap().0 = g;
+            w.run_system_once(adjoint::g2p::g2p_adjoint).unwrap();
+        }),
+        ("p2g", |w, _, rng, bad| {
+            let n = w.resource::<GridAdj>().velocity.len();
+            let mut g = rng.vs(n);
+            if bad {
+                g.iter_mut().for_each(|v| v.z = f64::NAN);
+            }
+            w.resource_mut::<GridAdj>().velocity = g;
+            w.run_system_once(adjoint::p2g::p2g_adjoint).unwrap();
+        }),
+        ("constitutive", |w, e, rng, bad| {
+            let mut g = rng.ms(N);
+            if bad {
+                g[5].x_axis.x = f64::NAN;
+            }
+            w.get_mut::<P2gAffineAdj>(e).unwrap().0 = g;
+            w.run_system_once(adjoint::constitutive::constitutive_model_adjoint::<DruckerPrager>)
+                .unwrap();
+        }),
+        ("svd", |w, e, rng, bad| {
+            let mut g = rng.vs(N);
+            if bad {
+                g[5].z = f64::NAN;
+            }
+            w.get_mut::<SvdFactorsAdj>(e).unwrap().s = g;
+            w.run_system_once(adjoint::svd::svd_adjoint).unwrap();
+        }),
+        ("deformation_update", |w, e, rng, bad| {
+            let mut g = rng.ms(N);
+            if bad {
+                g[5].y_axis.z = f64::NAN;
+            }
+            w.get_mut::<TrialDeformationAdj>(e).unwrap().0 = g;
+            w.run_system_once(adjoint::deformation_update::deformation_update_adjoint)
+                .unwrap();
+        }),
+    ];
+    for (k, (stage, run)) in cases.iter().enumerate() {
+        for bad in [false, true] {
+            let (mut w, e, mut rng) = fresh(100 + k as u64);
+            run(&mut w, e, &mut rng, bad);
+            assert_eq!(flagged(&mut w), bad, "{stage}, NaN in its input: {bad}");
+        }
+    }
 }

@@ -10,6 +10,7 @@
 //! (exact within a return-mapping case, one-sided at the case switches). Consumes `Ā` and
 //! `F̄′`; accumulates `Ū, σ̄, V̄`, `F̄_tmp`, `C̄` and [`MaterialAdj`].
 
+use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::materials::Material;
 use crate::systems::constitutive::compose;
@@ -31,6 +32,7 @@ pub fn constitutive_model_adjoint<M: Material>(
     params: Res<SimParams>,
     grid: Res<Grid>,
     mut partial: Local<Vec<MaterialAdj>>,
+    seen: Option<Res<NonFiniteSeen>>,
     mut bodies: Query<(
         &M,
         &Body,
@@ -43,6 +45,7 @@ pub fn constitutive_model_adjoint<M: Material>(
         &mut MaterialAdj,
     )>,
 ) {
+    let seen = seen.as_deref();
     let coef_dt = -params.dt_sub * 4.0 / (grid.dx * grid.dx);
     for (mat, body, svd, mut g_svd, mut g_a, mut g_f, mut g_ft, mut g_c, mut g_mat) in &mut bodies {
         let k = coef_dt * body.particle_volume;
@@ -87,6 +90,10 @@ pub fn constitutive_model_adjoint<M: Material>(
                         None => gft[j] += gf[j],
                     }
                     gs[j] += out.g_sigma;
+                    NonFiniteSeen::check(
+                        seen,
+                        gc[j].is_finite() && gs[j].is_finite() && gft[j].is_finite(),
+                    );
                     *pm = add_material(*pm, &out.g_material);
                     ga[j] = DMat3::ZERO;
                     gf[j] = DMat3::ZERO;

@@ -6,6 +6,7 @@
 //!
 //! with `C`, `F` the substep-start values. Exact. Consumes `F̄_tmp`.
 
+use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use bevy_ecs::prelude::*;
 use glam::DMat3;
@@ -22,6 +23,7 @@ pub fn trial_deformation_adj(c: DMat3, f: DMat3, dt: f64, g_ft: DMat3) -> (DMat3
 
 pub fn deformation_update_adjoint(
     params: Res<SimParams>,
+    seen: Option<Res<NonFiniteSeen>>,
     mut bodies: Query<(
         &SubstepStart,
         &mut TrialDeformationAdj,
@@ -29,6 +31,7 @@ pub fn deformation_update_adjoint(
         &mut DeformationGradientAdj,
     )>,
 ) {
+    let seen = seen.as_deref();
     let dt = params.dt_sub;
     for (start, mut g_ft, mut g_c, mut g_f) in &mut bodies {
         g_c.0
@@ -40,6 +43,7 @@ pub fn deformation_update_adjoint(
                 let (dc, df) = trial_deformation_adj(start.c[i], start.f[i], dt, *gft);
                 *gc += dc;
                 *gf += df;
+                NonFiniteSeen::check(seen, gc.is_finite() && gf.is_finite());
                 *gft = DMat3::ZERO;
             });
     }

@@ -10,6 +10,7 @@
 //! Exact. Reads the substep-start `x` and the final grid velocity; consumes `v̄`, `C̄` (the
 //! adjoints of G2P's outputs) and accumulates `x̄` and the grid velocity adjoint.
 
+use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::math::kernel::stencil;
 use crate::systems::p2g::SLAB;
@@ -45,6 +46,7 @@ pub fn g2p_adjoint(
     grid: Res<Grid>,
     mut adj: ResMut<GridAdj>,
     mut scratch: Local<Vec<DVec3>>,
+    seen: Option<Res<NonFiniteSeen>>,
     mut bodies: Query<(
         &Body,
         &SubstepStart,
@@ -115,9 +117,13 @@ pub fn g2p_adjoint(
             .zip(odd)
             .enumerate()
             .for_each(|(c, (out, gxo))| slab(2 * c + 1, 2 * SLAB * c + SLAB, out, gxo));
+        let mut finite = true;
         for (&p, g) in order.order.iter().zip(scratch.iter()) {
-            gx.0[p as usize] += *g;
+            let gx = &mut gx.0[p as usize];
+            *gx += *g;
+            finite &= gx.is_finite();
         }
+        NonFiniteSeen::check(seen.as_deref(), finite);
         // G2P overwrote v and C: their adjoints are consumed.
         gv.0.par_iter_mut().for_each(|g| *g = DVec3::ZERO);
         gc.0.par_iter_mut().for_each(|g| *g = DMat3::ZERO);

@@ -32,6 +32,32 @@ pub mod tool_move;
 use crate::systems::{new_schedule, Stage, SubstepPlan};
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleLabel;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Raised by an adjoint stage that has just written a non-finite value into one of the particle
+/// fields the backward driver checks after it (`tape.rs`, `written_by`). The stages test the
+/// values they write while they hold them, so the driver scans those fields (to name the
+/// particle) only after a stage that raised it, instead of reading every field after every
+/// stage. Where the resource is absent (an adjoint system run alone), nothing is raised.
+#[derive(Resource, Debug, Default)]
+pub struct NonFiniteSeen(AtomicBool);
+
+impl NonFiniteSeen {
+    /// Raises the flag if `finite` is false.
+    #[inline(always)]
+    pub fn check(seen: Option<&Self>, finite: bool) {
+        if !finite {
+            if let Some(s) = seen {
+                s.0.store(true, Ordering::Relaxed);
+            }
+        }
+    }
+
+    /// Whether the flag was raised since the last call; lowers it.
+    pub fn take(&self) -> bool {
+        self.0.swap(false, Ordering::Relaxed)
+    }
+}
 
 /// The adjoint substep schedule.
 #[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]

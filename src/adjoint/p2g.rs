@@ -12,6 +12,7 @@
 //! Exact except at the empty-node threshold `m_i = m_min` (a kink: one-sided). Reads the
 //! substep-start `x`, `v`; accumulates `v̄`, `Ā`, `x̄`.
 
+use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::math::kernel::stencil;
 use bevy_ecs::prelude::*;
@@ -22,6 +23,7 @@ pub fn p2g_adjoint(
     params: Res<SimParams>,
     grid: Res<Grid>,
     mut adj: ResMut<GridAdj>,
+    seen: Option<Res<NonFiniteSeen>>,
     mut bodies: Query<(
         &Body,
         &SubstepStart,
@@ -31,6 +33,7 @@ pub fn p2g_adjoint(
         &mut P2gAffineAdj,
     )>,
 ) {
+    let seen = seen.as_deref();
     let m_min = params.empty_node_mass;
     let dx = grid.dx;
     let inv_dx = 1.0 / dx;
@@ -76,6 +79,7 @@ pub fn p2g_adjoint(
                 *gv += sums.w_g * m;
                 *ga += sums.w_g_d(st.fx, dx);
                 *gx += sums.grad_s - a.transpose() * sums.w_g;
+                NonFiniteSeen::check(seen, gx.is_finite() && gv.is_finite() && ga.is_finite());
             });
     }
 }

@@ -3,13 +3,18 @@
 //! are damped (the documented bias, which vanishes for isotropic materials). Consumes
 //! `Ū, σ̄, V̄`.
 
+use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::math::svd::{svd3_adj, Svd3};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-pub fn svd_adjoint(mut bodies: Query<(&SvdFactors, &mut SvdFactorsAdj, &mut TrialDeformationAdj)>) {
+pub fn svd_adjoint(
+    seen: Option<Res<NonFiniteSeen>>,
+    mut bodies: Query<(&SvdFactors, &mut SvdFactorsAdj, &mut TrialDeformationAdj)>,
+) {
+    let seen = seen.as_deref();
     for (svd, mut g, mut g_ft) in &mut bodies {
         let g = &mut *g;
         g_ft.0
@@ -26,6 +31,7 @@ pub fn svd_adjoint(mut bodies: Query<(&SvdFactors, &mut SvdFactorsAdj, &mut Tria
                     v: svd.v[i],
                 };
                 *gft += svd3_adj(&d, *gu, *gs, *gv);
+                NonFiniteSeen::check(seen, gft.is_finite());
                 *gu = DMat3::ZERO;
                 *gs = DVec3::ZERO;
                 *gv = DMat3::ZERO;
