@@ -10,7 +10,7 @@ use crate::adjoint::grid_collision::{
 };
 use crate::components::*;
 use crate::systems::particle_collision::{
-    clear_of, project_particle, project_particle_adj, Reach, MARGIN_CELLS,
+    clear_by_shape, clear_of, project_particle, project_particle_adj, Reach, MARGIN_CELLS,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -53,8 +53,12 @@ pub fn particle_collision_adjoint(
                 if !reach.may_reach(xp, v, dt, margin) {
                     continue;
                 }
-                let (phi, n) = pose.sdf(&c.shape, xp);
                 let vb = pose.velocity_at(xp);
+                let local = pose.pose.to_local(xp);
+                if clear_by_shape(c, local, margin, dt, v, vb) {
+                    continue;
+                }
+                let (phi, n) = pose.sdf_at_local(&c.shape, local);
                 if clear_of(phi, margin, dt, v, vb) {
                     continue;
                 }

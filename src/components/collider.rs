@@ -58,7 +58,14 @@ impl ColliderPose {
     /// World-frame SDF and gradient.
     #[inline]
     pub fn sdf(&self, shape: &Shape, x: DVec3) -> (f64, DVec3) {
-        let (phi, g) = shape.sdf(self.pose.to_local(x));
+        self.sdf_at_local(shape, self.pose.to_local(x))
+    }
+
+    /// [`ColliderPose::sdf`] from the local point `self.pose.to_local(x)`, for callers that
+    /// have it already.
+    #[inline]
+    pub fn sdf_at_local(&self, shape: &Shape, local: DVec3) -> (f64, DVec3) {
+        let (phi, g) = shape.sdf(local);
         (phi, self.pose.rotation * g)
     }
 }
@@ -154,7 +161,12 @@ pub fn node_contact(
     if (x - pose.pose.translation).length_squared() > reach * reach {
         return None;
     }
-    let (phi, normal) = pose.sdf(&c.shape, x);
+    let local = pose.pose.to_local(x);
+    // φ > band for certain: the SDF would say "no contact" too.
+    if c.shape.surely_clear(local, c.band) {
+        return None;
+    }
+    let (phi, normal) = pose.sdf_at_local(&c.shape, local);
     (phi < c.band).then_some((phi, normal))
 }
 

@@ -154,6 +154,22 @@ pub fn clear_of(phi: f64, margin: f64, dt: f64, v: DVec3, v_body: DVec3) -> bool
     phi - margin > dt * speed
 }
 
+/// Whether the shape's cheap interior test ([`Shape::surely_clear`](crate::math::sdf::Shape::surely_clear)) shows the particle clear
+/// without the SDF: the same threshold as [`clear_of`], so skipping on it is exact.
+/// `local` is the particle's position in the collider's frame.
+#[inline(always)]
+pub fn clear_by_shape(
+    c: &Collider,
+    local: DVec3,
+    margin: f64,
+    dt: f64,
+    v: DVec3,
+    v_body: DVec3,
+) -> bool {
+    let speed = v.length_squared().max((v - v_body).length_squared()).sqrt();
+    c.shape.surely_clear(local, margin + dt * speed)
+}
+
 /// A collider's bounding sphere and the speed of its fastest point, computed once per substep:
 /// the cheap test before the SDF.
 #[derive(Clone, Copy, Debug)]
@@ -203,8 +219,12 @@ pub fn particle_collision(
                 if !reach.may_reach(x, *v, dt, margin) {
                     continue;
                 }
-                let (phi, n) = pose.sdf(&c.shape, x);
                 let vb = pose.velocity_at(x);
+                let local = pose.pose.to_local(x);
+                if clear_by_shape(c, local, margin, dt, *v, vb) {
+                    continue;
+                }
+                let (phi, n) = pose.sdf_at_local(&c.shape, local);
                 if clear_of(phi, margin, dt, *v, vb) {
                     continue;
                 }
