@@ -89,9 +89,35 @@ fn a_killed_run_resumes_to_the_same_results_and_loses_no_rollout() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("other settings"));
 
+    // The time each method had run before the kill, as its journal lines record it.
+    let mut before: std::collections::BTreeMap<String, f64> = Default::default();
+    for line in std::fs::read_to_string(killed.join("journal.jsonl"))
+        .unwrap()
+        .lines()
+    {
+        if let Ok(r) = serde_json::from_str::<serde_json::Value>(line) {
+            let t = r["method_elapsed_s"]
+                .as_f64()
+                .expect("every new line has it");
+            let e = before
+                .entry(r["method"].as_str().unwrap().into())
+                .or_default();
+            *e = e.max(t);
+        }
+    }
+    assert!(!before.is_empty());
+
     let o = optimize(&killed, &["--resume"]).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    // A method's wall time counts the processes before the resume too, not only this one.
+    for (m, t) in &before {
+        let w = summary["methods"][m]["wall_s"].as_f64().unwrap();
+        assert!(
+            w >= *t,
+            "{m}: wall_s {w} after resume, {t} s before the kill"
+        );
+    }
     let replayed = summary["rollouts_replayed"].as_u64().unwrap() as usize;
     let ran = summary["rollouts_run"].as_u64().unwrap() as usize;
     // A kill can leave a torn last line, which resuming drops: at most one rollout is lost.

@@ -30,6 +30,11 @@ pub struct Record {
     /// What the rollout gave (its fields sit flat beside the ones above in the JSON line).
     #[serde(flatten)]
     pub outcome: Outcome,
+    /// Seconds the method had been running when this rollout finished, summed over every
+    /// process that worked on this output directory (a resumed run starts from the largest
+    /// value its journal holds). Absent in journals written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub method_elapsed_s: Option<f64>,
 }
 
 type Key = (Method, usize, usize, [u64; 5]);
@@ -123,6 +128,16 @@ impl Journal {
         }
         self.ran.fetch_add(1, Ordering::Relaxed);
         Ok(())
+    }
+
+    /// The method's running time carried over from the processes that wrote this journal
+    /// before (0 for a fresh journal): the largest `method_elapsed_s` among its rollouts.
+    pub fn carried_elapsed(&self, method: Method) -> f64 {
+        self.known
+            .values()
+            .filter(|r| r.method == method)
+            .filter_map(|r| r.method_elapsed_s)
+            .fold(0.0, f64::max)
     }
 
     /// Rollouts replayed from the journal and rollouts simulated by this process.

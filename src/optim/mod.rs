@@ -168,6 +168,10 @@ struct Runner<'a> {
     problem: &'a Problem,
     journal: &'a Journal,
     board: &'a Board,
+    /// When this process started the method, and the method's time carried over from the
+    /// processes before it (`Journal::carried_elapsed`).
+    start: Instant,
+    carried: f64,
 }
 
 impl Runner<'_> {
@@ -190,6 +194,7 @@ impl Runner<'_> {
                     batch,
                     theta,
                     outcome: o,
+                    method_elapsed_s: Some(self.carried + self.start.elapsed().as_secs_f64()),
                 };
                 self.journal.append(&r)?;
                 r
@@ -394,21 +399,24 @@ pub fn run(problem: &Problem, opts: &Options) -> anyhow::Result<RunSummary> {
         out: opts.out.clone(),
         unit,
     };
-    let runner = Runner {
-        problem,
-        journal: &journal,
-        board: &board,
-    };
+    // Each method's time, over every process that ran it: what the journal carries plus this
+    // process's time (a method replayed whole from the journal adds about nothing).
     let mut elapsed = BTreeMap::new();
     for &m in &s.methods {
-        let t = Instant::now();
+        let runner = Runner {
+            problem,
+            journal: &journal,
+            board: &board,
+            start: Instant::now(),
+            carried: journal.carried_elapsed(m),
+        };
         match m {
             Method::Grad => runner.grad(s)?,
             Method::Cmaes => runner.cmaes(s)?,
             Method::Sac => runner.sac(s)?,
             Method::Random => runner.random(s)?,
         }
-        elapsed.insert(m, t.elapsed().as_secs_f64());
+        elapsed.insert(m, runner.carried + runner.start.elapsed().as_secs_f64());
     }
     board.bar.finish_and_clear();
     let records = board.records.into_inner().expect("board lock");
