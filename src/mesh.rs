@@ -1,7 +1,7 @@
 //! Triangle meshes of the analytic shapes, for recordings. Shapes of revolution (about local y)
 //! are built from a 2-D profile; the box and the spoon handle directly.
 
-use crate::math::sdf::Shape;
+use crate::math::sdf::{spoon_rim_and_handle, Shape};
 use glam::{DQuat, DVec3};
 
 /// An indexed triangle mesh in a shape's local frame.
@@ -143,15 +143,13 @@ pub fn shape_mesh(shape: &Shape) -> Mesh {
             handle_radius,
             handle_rise,
         } => {
-            let h = bowl_depth - bowl_radius;
+            let (h, a, d) =
+                spoon_rim_and_handle(bowl_radius, bowl_depth, handle_length, handle_rise);
             let rim = (h / bowl_radius).clamp(-1.0, 1.0).asin();
             let t = 0.5 * thickness;
             let mut profile = arc(bowl_radius + t, 0.0, -FRAC_PI_2, rim, 12);
             profile.extend(arc(bowl_radius - t, 0.0, rim, -FRAC_PI_2, 12));
             let mut m = revolve(&profile);
-            let w = (bowl_radius * bowl_radius - h * h).max(0.0).sqrt();
-            let a = DVec3::new(w, h, 0.0);
-            let d = DVec3::new(handle_length, handle_rise, 0.0);
             let handle = revolve(&capsule_profile(0.5 * d.length(), handle_radius)).transformed(
                 DQuat::from_rotation_arc(DVec3::Y, d.normalize()),
                 a + 0.5 * d,

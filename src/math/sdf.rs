@@ -187,6 +187,26 @@ pub fn sd_cut_hollow_sphere(p: DVec3, r: f64, h: f64, t: f64) -> (f64, DVec3) {
     (d - t, radial * g_rho + DVec3::new(0.0, g_y, 0.0))
 }
 
+/// A spoon's rim and handle, in the spoon's frame: the height `h = bowl_depth − r` of the cut
+/// plane above the sphere centre, the rim point `a = (√(r² − h²), h, 0)` where the handle
+/// leaves, and the handle's run `d = (handle_length, handle_rise, 0)`: the handle's axis is the
+/// segment `a → a + d`.
+#[inline(always)]
+pub fn spoon_rim_and_handle(
+    bowl_radius: f64,
+    bowl_depth: f64,
+    handle_length: f64,
+    handle_rise: f64,
+) -> (f64, DVec3, DVec3) {
+    let h = bowl_depth - bowl_radius;
+    let w = (bowl_radius * bowl_radius - h * h).max(0.0).sqrt();
+    (
+        h,
+        DVec3::new(w, h, 0.0),
+        DVec3::new(handle_length, handle_rise, 0.0),
+    )
+}
+
 impl Shape {
     /// Signed distance and gradient at the local point `p`.
     pub fn sdf(&self, p: DVec3) -> (f64, DVec3) {
@@ -234,11 +254,10 @@ impl Shape {
                 handle_radius,
                 handle_rise,
             } => {
-                let h = bowl_depth - bowl_radius;
+                let (h, a, d) =
+                    spoon_rim_and_handle(bowl_radius, bowl_depth, handle_length, handle_rise);
                 let bowl = sd_cut_hollow_sphere(p, bowl_radius, h, 0.5 * thickness);
-                let w = (bowl_radius * bowl_radius - h * h).max(0.0).sqrt();
-                let a = DVec3::new(w, h, 0.0);
-                let b = a + DVec3::new(handle_length, handle_rise, 0.0);
+                let b = a + d;
                 let handle = sd_capsule(p, a, b, handle_radius);
                 if bowl.0 <= handle.0 {
                     bowl
@@ -286,10 +305,10 @@ impl Shape {
                 if p.length_squared() <= bowl * bowl {
                     return false;
                 }
-                let h = bowl_depth - bowl_radius;
-                let w = (bowl_radius * bowl_radius - h * h).max(0.0).sqrt();
-                let half = 0.5 * DVec3::new(handle_length, handle_rise, 0.0);
-                let m = DVec3::new(w, h, 0.0) + half;
+                let (_, a, d) =
+                    spoon_rim_and_handle(bowl_radius, bowl_depth, handle_length, handle_rise);
+                let half = 0.5 * d;
+                let m = a + half;
                 let handle = half.length() + handle_radius + s;
                 (p - m).length_squared() > handle * handle
             }
@@ -373,16 +392,15 @@ impl Shape {
                 handle_radius,
                 handle_rise,
             } => {
-                let h = bowl_depth - bowl_radius;
+                let (h, a, d) =
+                    spoon_rim_and_handle(bowl_radius, bowl_depth, handle_length, handle_rise);
                 let bowl = sd_cut_hollow_sphere(p, bowl_radius, h, 0.5 * thickness);
-                let w = (bowl_radius * bowl_radius - h * h).max(0.0).sqrt();
-                let a = DVec3::new(w, h, 0.0);
-                let b = a + DVec3::new(handle_length, handle_rise, 0.0);
+                let b = a + d;
                 let handle = sd_capsule(p, a, b, handle_radius);
                 if bowl.0 <= handle.0 {
                     let rho = (p.x * p.x + p.z * p.z).sqrt();
-                    if h * rho < w * p.y {
-                        Some(circle_distance_hessian(p, w, h))
+                    if h * rho < a.x * p.y {
+                        Some(circle_distance_hessian(p, a.x, h))
                     } else {
                         let l = p.length();
                         let s = if l < bowl_radius { -1.0 } else { 1.0 };
