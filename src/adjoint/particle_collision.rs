@@ -10,7 +10,7 @@ use crate::adjoint::grid_collision::{
 };
 use crate::components::*;
 use crate::systems::particle_collision::{
-    clear_by_shape, clear_of, project_particle, project_particle_adj, Reach, MARGIN_CELLS,
+    particle_contact, project_particle, project_particle_adj, Reach, MARGIN_CELLS,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -50,18 +50,10 @@ pub fn particle_collision_adjoint(
             let mut hits = [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
             let mut count = 0;
             for &(ci, c, pose, reach) in &view {
-                if !reach.may_reach(xp, v, dt, margin) {
+                let Some((phi, n, vb)) = particle_contact(c, pose, &reach, xp, v, dt, margin)
+                else {
                     continue;
-                }
-                let vb = pose.velocity_at(xp);
-                let local = pose.pose.to_local(xp);
-                if clear_by_shape(c, local, margin, dt, v, vb) {
-                    continue;
-                }
-                let (phi, n) = pose.sdf_at_local(&c.shape, local);
-                if clear_of(phi, margin, dt, v, vb) {
-                    continue;
-                }
+                };
                 hits[count] = (ci, v, phi, n, vb);
                 v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction);
                 count += 1;

@@ -145,29 +145,48 @@ pub fn project_particle_adj(
     a
 }
 
+/// `max(‖v‖, ‖v − v_b‖)`, the speed [`clear_of`] allows for over a substep.
+#[inline(always)]
+fn clearance_speed(v: DVec3, v_body: DVec3) -> f64 {
+    v.length_squared().max((v - v_body).length_squared()).sqrt()
+}
+
 /// Whether a particle is so far from a collider that the projection cannot change it:
 /// `φ − margin > Δt·max(‖v‖, ‖v − v_b‖)` implies `v·n ≥ v_min` for every unit `n` (the `‖v‖`
 /// term covers a receding surface, the relative speed an approaching one), so skipping is exact.
 #[inline(always)]
 pub fn clear_of(phi: f64, margin: f64, dt: f64, v: DVec3, v_body: DVec3) -> bool {
-    let speed = v.length_squared().max((v - v_body).length_squared()).sqrt();
-    phi - margin > dt * speed
+    phi - margin > dt * clearance_speed(v, v_body)
 }
 
-/// Whether the shape's cheap interior test ([`Shape::surely_clear`](crate::math::sdf::Shape::surely_clear)) shows the particle clear
-/// without the SDF: the same threshold as [`clear_of`], so skipping on it is exact.
-/// `local` is the particle's position in the collider's frame.
+/// The contact of a particle at `x` moving at `v` with collider `c` in this substep:
+/// `(φ, world normal, the collider's velocity at x)`, or `None` where the projection cannot
+/// change the particle: out of the collider's reach ([`Reach`]), clear by the shape's cheap
+/// test ([`Shape::surely_clear`](crate::math::sdf::Shape::surely_clear), at the same threshold
+/// as [`clear_of`], so skipping on it is exact) or by `φ` itself. The stage and its adjoint both
+/// ask this, so they skip the same particles.
 #[inline(always)]
-pub fn clear_by_shape(
+pub fn particle_contact(
     c: &Collider,
-    local: DVec3,
-    margin: f64,
-    dt: f64,
+    pose: &ColliderPose,
+    reach: &Reach,
+    x: DVec3,
     v: DVec3,
-    v_body: DVec3,
-) -> bool {
-    let speed = v.length_squared().max((v - v_body).length_squared()).sqrt();
-    c.shape.surely_clear(local, margin + dt * speed)
+    dt: f64,
+    margin: f64,
+) -> Option<(f64, DVec3, DVec3)> {
+    if !reach.may_reach(x, v, dt, margin) {
+        return None;
+    }
+    let vb = pose.velocity_at(x);
+    let local = pose.pose.to_local(x);
+    if c.shape
+        .surely_clear(local, margin + dt * clearance_speed(v, vb))
+    {
+        return None;
+    }
+    let (phi, n) = pose.sdf_at_local(&c.shape, local);
+    (!clear_of(phi, margin, dt, v, vb)).then_some((phi, n, vb))
 }
 
 /// A collider's bounding sphere and the speed of its fastest point, computed once per substep:
@@ -216,19 +235,9 @@ pub fn particle_collision(
     for (x, mut v) in &mut bodies {
         v.0.par_iter_mut().zip(x.0.par_iter()).for_each(|(v, &x)| {
             for (c, pose, reach) in &cs {
-                if !reach.may_reach(x, *v, dt, margin) {
-                    continue;
+                if let Some((phi, n, vb)) = particle_contact(c, pose, reach, x, *v, dt, margin) {
+                    *v = project_particle(*v, phi, n, vb, dt, margin, c.contact, c.friction);
                 }
-                let vb = pose.velocity_at(x);
-                let local = pose.pose.to_local(x);
-                if clear_by_shape(c, local, margin, dt, *v, vb) {
-                    continue;
-                }
-                let (phi, n) = pose.sdf_at_local(&c.shape, local);
-                if clear_of(phi, margin, dt, *v, vb) {
-                    continue;
-                }
-                *v = project_particle(*v, phi, n, vb, dt, margin, c.contact, c.friction);
             }
         });
     }
