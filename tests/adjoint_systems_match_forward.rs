@@ -634,28 +634,36 @@ fn stages_flag_the_non_finite_values_they_write() {
         (st.x, st.v, st.f, st.c) = (x, v, f, c);
         (w, e, rng)
     };
-    // (stage, how its input adjoint is set: finite, or with one NaN)
+    // Random input adjoints, with one NaN entry when `bad`.
+    fn vs(rng: &mut Rng, n: usize, bad: bool) -> Vec<DVec3> {
+        let mut g = rng.vs(n);
+        if bad {
+            g[5].y = f64::NAN;
+        }
+        g
+    }
+    fn ms(rng: &mut Rng, bad: bool) -> Vec<DMat3> {
+        let mut g = rng.ms(N);
+        if bad {
+            g[5].y_axis.z = f64::NAN;
+        }
+        g
+    }
+    // (stage, how its input adjoint is set before it runs)
     type Setup = fn(&mut World, Entity, &mut Rng, bool);
     let cases: [(&str, Setup); 6] = [
         ("advect", |w, e, rng, bad| {
-            let mut g = rng.vs(N);
-            if bad {
-                g[5].y = f64::NAN;
-            }
-            w.get_mut::<PositionAdj>(e).unwrap().0 = g;
+            w.get_mut::<PositionAdj>(e).unwrap().0 = vs(rng, N, bad);
             w.run_system_once(adjoint::advect::advect_adjoint).unwrap();
         }),
         ("g2p", |w, e, rng, bad| {
-            let mut g = rng.vs(N);
-            if bad {
-                g[5].x = f64::NAN;
-            }
-            w.get_mut::<VelocityAdj>(e).unwrap().0 = g;
+            w.get_mut::<VelocityAdj>(e).unwrap().0 = vs(rng, N, bad);
             w.run_system_once(adjoint::g2p::g2p_adjoint).unwrap();
         }),
         ("p2g", |w, _, rng, bad| {
+            // Every node, so that some non-empty node (the only ones it reads) has the NaN.
             let n = w.resource::<GridAdj>().velocity.len();
-            let mut g = rng.vs(n);
+            let mut g = vs(rng, n, false);
             if bad {
                 g.iter_mut().for_each(|v| v.z = f64::NAN);
             }
@@ -663,28 +671,16 @@ fn stages_flag_the_non_finite_values_they_write() {
             w.run_system_once(adjoint::p2g::p2g_adjoint).unwrap();
         }),
         ("constitutive", |w, e, rng, bad| {
-            let mut g = rng.ms(N);
-            if bad {
-                g[5].x_axis.x = f64::NAN;
-            }
-            w.get_mut::<P2gAffineAdj>(e).unwrap().0 = g;
+            w.get_mut::<P2gAffineAdj>(e).unwrap().0 = ms(rng, bad);
             w.run_system_once(adjoint::constitutive::constitutive_model_adjoint::<DruckerPrager>)
                 .unwrap();
         }),
         ("svd", |w, e, rng, bad| {
-            let mut g = rng.vs(N);
-            if bad {
-                g[5].z = f64::NAN;
-            }
-            w.get_mut::<SvdFactorsAdj>(e).unwrap().s = g;
+            w.get_mut::<SvdFactorsAdj>(e).unwrap().s = vs(rng, N, bad);
             w.run_system_once(adjoint::svd::svd_adjoint).unwrap();
         }),
         ("deformation_update", |w, e, rng, bad| {
-            let mut g = rng.ms(N);
-            if bad {
-                g[5].y_axis.z = f64::NAN;
-            }
-            w.get_mut::<TrialDeformationAdj>(e).unwrap().0 = g;
+            w.get_mut::<TrialDeformationAdj>(e).unwrap().0 = ms(rng, bad);
             w.run_system_once(adjoint::deformation_update::deformation_update_adjoint)
                 .unwrap();
         }),
