@@ -221,7 +221,9 @@ pub fn collider_contact_adjoint(
     add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, _, a)| &mut **a));
 }
 
+/// Skips the empty nodes, as the forward does: their adjoint is dropped by the P2G adjoint.
 pub fn domain_walls_adjoint(
+    params: Res<SimParams>,
     walls: Res<DomainWalls>,
     grid: Res<Grid>,
     input: Res<WallInputVelocity>,
@@ -229,8 +231,12 @@ pub fn domain_walls_adjoint(
 ) {
     let n = grid.n;
     let cells = walls.cells;
+    let m_min = params.empty_node_mass;
     for_wall_nodes(&mut adj.velocity, n, cells, |coord, g| {
         let idx = grid.index(coord[0], coord[1], coord[2]);
+        if grid.mass[idx] <= m_min {
+            return;
+        }
         let mut normals = [DVec3::ZERO; 3];
         let mut vin = [DVec3::ZERO; 3];
         let mut v = input.0[idx];

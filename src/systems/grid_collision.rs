@@ -90,10 +90,19 @@ pub fn for_wall_nodes<T: Send>(
         });
 }
 
-pub fn domain_walls(walls: Res<DomainWalls>, mut grid: ResMut<Grid>) {
+/// Empty nodes (`m ≤ m_min`) are skipped: P2G left their velocity at +0, which no response
+/// changes (see `contact_response`), and nothing reads them back (G2P weighs them, but by
+/// zero; the P2G adjoint drops their adjoint).
+pub fn domain_walls(params: Res<SimParams>, walls: Res<DomainWalls>, mut grid: ResMut<Grid>) {
     let n = grid.n;
     let cells = walls.cells;
-    for_wall_nodes(&mut grid.velocity, n, cells, |coord, v| {
+    let m_min = params.empty_node_mass;
+    let g = &mut *grid;
+    let mass = &g.mass;
+    for_wall_nodes(&mut g.velocity, n, cells, |coord, v| {
+        if mass[(coord[0] * n[1] + coord[1]) * n[2] + coord[2]] <= m_min {
+            return;
+        }
         for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
             *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
         }
