@@ -7,7 +7,9 @@
 //! ```
 //!
 //! then the material's `update_adj` maps `(σ̄′, D̄)` to `σ̄` and the parameter gradient
-//! (exact within a return-mapping case, one-sided at the case switches). Consumes `Ā` and
+//! (exact within a return-mapping case, one-sided at the case switches); `update_adj_saved`
+//! instead when the recomputed forward kept its [`UpdateSaved`] (the same bits, fewer
+//! logarithms and exponentials). Consumes `Ā` and
 //! `F̄′`; accumulates `Ū, σ̄, V̄`, `F̄_tmp`, `C̄` and [`MaterialAdj`].
 
 use crate::adjoint::NonFiniteSeen;
@@ -43,14 +45,19 @@ pub fn constitutive_model_adjoint<M: Material>(
         &mut TrialDeformationAdj,
         &mut AffineVelocityAdj,
         &mut MaterialAdj,
+        Option<&UpdateSaved>,
     )>,
 ) {
     let seen = seen.as_deref();
     let coef_dt = -params.dt_sub * 4.0 / (grid.dx * grid.dx);
-    for (mat, body, svd, mut g_svd, mut g_a, mut g_f, mut g_ft, mut g_c, mut g_mat) in &mut bodies {
+    for (mat, body, svd, mut g_svd, mut g_a, mut g_f, mut g_ft, mut g_c, mut g_mat, saved) in
+        &mut bodies
+    {
         let k = coef_dt * body.particle_volume;
         let m = body.particle_mass;
         let n = svd.u.len();
+        // What the recomputed forward saved of the material update, if it saved it.
+        let saved = saved.map(|s| &s.0[..]).filter(|s| s.len() == n);
         let g_svd = &mut *g_svd;
         // One partial sum of the material gradient per chunk of REDUCE_CHUNK particles, in
         // particle order, into a buffer kept between substeps.
@@ -79,7 +86,10 @@ pub fn constitutive_model_adjoint<M: Material>(
                     // F' = U diag(σ') Vᵀ (the material ignores σ̄′ when F' = F_tmp).
                     let g_s_new = diag_of(u.transpose() * gf[j] * v);
                     // The material's adjoint also returns its forward update (σ′, τ_p).
-                    let out = mat.update_adj(s, 0.0, g_s_new, g_d);
+                    let out = match saved {
+                        Some(sv) => mat.update_adj_saved(s, 0.0, &sv[i], g_s_new, g_d),
+                        None => mat.update_adj(s, 0.0, g_s_new, g_d),
+                    };
                     let sym = g_tau + g_tau.transpose();
                     gu[j] += sym * compose(u, out.tau, DMat3::IDENTITY);
                     match out.sigma_new {

@@ -142,6 +142,8 @@ struct BodyRecord {
     collision_input: Vec<DVec3>,
     trial: Vec<DMat3>,
     svd: SvdFactors,
+    /// What the material update saved for its adjoint.
+    saved: Vec<[DVec3; 3]>,
     affine: Vec<DMat3>,
     order: ScatterOrder,
 }
@@ -153,6 +155,7 @@ type RecordQuery<'a> = (
     &'a mut ParticleCollisionInput,
     &'a mut TrialDeformation,
     &'a mut SvdFactors,
+    &'a mut UpdateSaved,
     &'a mut P2gAffine,
     &'a mut ScatterOrder,
 );
@@ -180,6 +183,7 @@ impl SubstepRecord {
                         s: vec![DVec3::ZERO; n],
                         v: vec![DMat3::ZERO; n],
                     },
+                    saved: vec![[DVec3::ZERO; 3]; n],
                     affine: vec![DMat3::ZERO; n],
                     order: ScatterOrder::default(),
                 }
@@ -208,8 +212,17 @@ impl SubstepRecord {
         save: bool,
     ) {
         for (&e, b) in bodies.iter().zip(&mut self.bodies) {
-            let (mut x, mut v, mut start, mut pc, mut trial, mut svd, mut affine, mut order) =
-                q.get_mut(world, e).expect("a body entity");
+            let (
+                mut x,
+                mut v,
+                mut start,
+                mut pc,
+                mut trial,
+                mut svd,
+                mut saved,
+                mut affine,
+                mut order,
+            ) = q.get_mut(world, e).expect("a body entity");
             if save {
                 b.v_end.clone_from(&v.0);
             } else {
@@ -227,6 +240,7 @@ impl SubstepRecord {
             } else {
                 std::mem::swap(&mut svd.v, &mut b.svd.v);
             }
+            std::mem::swap(&mut saved.0, &mut b.saved);
             std::mem::swap(&mut affine.0, &mut b.affine);
             std::mem::swap(&mut *order, &mut b.order);
         }
@@ -257,9 +271,10 @@ impl SubstepRecord {
 
     /// Bytes held by one record of a world.
     fn bytes(particles: usize, nodes: usize) -> usize {
-        // start (x, v, C, F), final v, collision input, trial F, U, σ, V, affine, order; grid
-        // m, p, v and the two contact inputs.
-        particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 72 + 24 + 72 + 72 + 4) + nodes * (8 + 4 * 24)
+        // start (x, v, C, F), final v, collision input, trial F, U, σ, V, the material's saved
+        // update, affine, order; grid m, p, v and the two contact inputs.
+        particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 72 + 24 + 72 + 72 + 72 + 4)
+            + nodes * (8 + 4 * 24)
     }
 }
 
@@ -612,6 +627,8 @@ fn gradient_in_pool(
             SubstepStart::zeroed(n),
             ParticleCollisionInput::default(),
             MaterialAdj::default(),
+            // From here on the constitutive stage saves its update for the adjoint.
+            UpdateSaved(vec![[DVec3::ZERO; 3]; n]),
         ));
     }
     // The forward and the adjoint stages, one schedule each, so the driver can save the contact
@@ -830,6 +847,7 @@ fn gradient_in_pool(
             SubstepStart,
             ParticleCollisionInput,
             MaterialAdj,
+            UpdateSaved,
         )>();
     }
     sim.world.remove_resource::<GridAdj>();

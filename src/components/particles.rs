@@ -50,6 +50,14 @@ pub struct SvdFactors {
     pub v: Vec<DMat3>,
 }
 
+/// What a material's update computed that its adjoint would otherwise compute again (for
+/// Drucker–Prager: the Hencky strain, the projected strain and its exponential), per particle.
+/// Present only while a backward pass recomputes: the tape inserts it, the constitutive stage
+/// fills it through `Material::update_saving`, the records keep it per substep, and the
+/// adjoint reads it instead of redoing the logarithms and exponentials. Scratch.
+#[derive(Component, Clone, Debug, Default)]
+pub struct UpdateSaved(pub Vec<[DVec3; 3]>);
+
 /// MLS-MPM affine matrix scattered by P2G: `m_p·C_p − Δt·V_p·(4/dx²)·τ_p`. Scratch.
 #[derive(Component, Clone, Debug, Default)]
 pub struct P2gAffine(pub Vec<DMat3>);

@@ -168,18 +168,22 @@ impl Material for DruckerPrager {
 
     #[inline(always)]
     fn update(&self, sigma: DVec3, q: &mut f64) -> (Option<DVec3>, DVec3) {
-        let c = self
-            .cache
-            .as_ref()
-            .expect("DruckerPrager::prepared() is called when the body is built");
-        let alpha = match self.hardening {
-            None => c.alpha,
-            Some((h0, h1, h2, h3)) => {
-                dp_alpha(hardened_friction_deg([h0, h1, h2, h3], *q).clamp(0.0, 89.0))
-            }
-        };
-        let p = project(c, sigma, alpha);
+        let p = self.project_at(sigma, *q);
         *q += p.dq;
+        (Some(p.sigma_new), p.tau)
+    }
+
+    /// Saves `[ε, ε′, exp ε′]`.
+    #[inline(always)]
+    fn update_saving(
+        &self,
+        sigma: DVec3,
+        q: &mut f64,
+        saved: &mut [DVec3; 3],
+    ) -> (Option<DVec3>, DVec3) {
+        let p = self.project_at(sigma, *q);
+        *q += p.dq;
+        *saved = [p.eps, p.eps_new, p.sigma_new];
         (Some(p.sigma_new), p.tau)
     }
 
@@ -188,23 +192,70 @@ impl Material for DruckerPrager {
     /// differentiated (the backward pass refuses such scenes).
     fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
         let c = self.cache.as_ref().expect("prepared");
-        let Projected {
+        self.adjoint_of(sigma, &project(c, sigma, c.alpha), g_sigma_new, g_tau)
+    }
+
+    /// [`Material::update_adj`] from the saved `[ε, ε′, exp ε′]`; `τ_p` is recomputed from `ε′`
+    /// by the same function as in the forward, so the result is the same bits.
+    fn update_adj_saved(
+        &self,
+        sigma: DVec3,
+        _q: f64,
+        saved: &[DVec3; 3],
+        g_sigma_new: DVec3,
+        g_tau: DVec3,
+    ) -> UpdateAdj {
+        let c = self.cache.as_ref().expect("prepared");
+        let [eps, eps_new, sigma_new] = *saved;
+        let p = Projected {
             eps,
             eps_new,
-            sigma_new: s_new,
-            tau,
-            ..
-        } = project(c, sigma, c.alpha);
+            dq: 0.0,
+            sigma_new,
+            tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
+        };
+        self.adjoint_of(sigma, &p, g_sigma_new, g_tau)
+    }
+}
+
+impl DruckerPrager {
+    /// The forward update at `σ` with the friction angle of hardening state `q`.
+    #[inline(always)]
+    fn project_at(&self, sigma: DVec3, q: f64) -> Projected {
+        let c = self
+            .cache
+            .as_ref()
+            .expect("DruckerPrager::prepared() is called when the body is built");
+        let alpha = match self.hardening {
+            None => c.alpha,
+            Some((h0, h1, h2, h3)) => {
+                dp_alpha(hardened_friction_deg([h0, h1, h2, h3], q).clamp(0.0, 89.0))
+            }
+        };
+        project(c, sigma, alpha)
+    }
+
+    /// The adjoint of the update `p` made at `σ` (see [`Material::update_adj`]).
+    #[inline(always)]
+    fn adjoint_of(
+        &self,
+        sigma: DVec3,
+        p: &Projected,
+        g_sigma_new: DVec3,
+        g_tau: DVec3,
+    ) -> UpdateAdj {
+        let c = self.cache.as_ref().expect("prepared");
         let (g_eps_k, mut g_mu, mut g_lambda) =
-            kirchhoff_principal_adj(eps_new, c.mu, c.lambda, g_tau);
-        let g_eps_new = g_sigma_new * s_new + g_eps_k;
-        let (g_eps, gm, gl, g_alpha) = dp_project_adj(eps, c.mu, c.lambda, c.alpha, g_eps_new, 0.0);
+            kirchhoff_principal_adj(p.eps_new, c.mu, c.lambda, g_tau);
+        let g_eps_new = g_sigma_new * p.sigma_new + g_eps_k;
+        let (g_eps, gm, gl, g_alpha) =
+            dp_project_adj(p.eps, c.mu, c.lambda, c.alpha, g_eps_new, 0.0);
         g_mu += gm;
         g_lambda += gl;
         let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = c.d_lame;
         UpdateAdj {
-            sigma_new: Some(s_new),
-            tau,
+            sigma_new: Some(p.sigma_new),
+            tau: p.tau,
             g_sigma: hencky_adj(sigma, g_eps),
             g_material: MaterialAdj {
                 youngs_modulus: g_mu * mu_e + g_lambda * lambda_e,
@@ -282,5 +333,45 @@ mod tests {
                 "φ",
             );
         }
+    }
+
+    /// The adjoint from the saved update is the recomputing adjoint, bit for bit, in each
+    /// return-mapping case (elastic, cone, tip), and `update_saving` is `update`.
+    #[test]
+    fn saved_update_gives_the_same_adjoint() {
+        let m = DruckerPrager::new(1e5, 0.3, 30.0).prepared();
+        let (g_s, g_t) = (DVec3::new(0.3, -0.8, 0.5), DVec3::new(1e-5, 2e-5, -1.5e-5));
+        let mut cases = std::collections::HashSet::new();
+        for sigma in [
+            DVec3::new(0.99, 0.9901, 0.99),
+            DVec3::new(1.02, 0.97, 0.99),
+            DVec3::new(1.05, 1.04, 1.06),
+        ] {
+            let c = m.cache.as_ref().unwrap();
+            cases.insert(format!(
+                "{:?}",
+                dp_project(hencky(sigma), c.mu, c.lambda, c.alpha).2
+            ));
+            let mut saved = [DVec3::ZERO; 3];
+            let (mut q0, mut q1) = (0.0, 0.0);
+            assert_eq!(
+                m.update_saving(sigma, &mut q0, &mut saved),
+                m.update(sigma, &mut q1)
+            );
+            let a = m.update_adj(sigma, 0.0, g_s, g_t);
+            let b = m.update_adj_saved(sigma, 0.0, &saved, g_s, g_t);
+            let bits = |u: &UpdateAdj| {
+                let mut v: Vec<u64> = [u.sigma_new.unwrap(), u.tau, u.g_sigma]
+                    .iter()
+                    .flat_map(|d| d.to_array())
+                    .map(f64::to_bits)
+                    .collect();
+                let g = u.g_material;
+                v.extend([g.youngs_modulus, g.poisson_ratio, g.friction_deg].map(f64::to_bits));
+                v
+            };
+            assert_eq!(bits(&a), bits(&b), "σ {sigma:?}");
+        }
+        assert_eq!(cases.len(), 3, "the three return-mapping cases: {cases:?}");
     }
 }

@@ -41,6 +41,30 @@ pub trait Material: Component + Clone + Send + Sync + 'static {
     /// material-parameter gradient, together with the update itself (the adjoint stage needs
     /// both, and one evaluation of the forward maths serves both).
     fn update_adj(&self, sigma: DVec3, q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj;
+    /// [`Material::update`], also writing into `saved` what [`Material::update_adj_saved`]
+    /// reads back. By default nothing is saved.
+    fn update_saving(
+        &self,
+        sigma: DVec3,
+        q: &mut f64,
+        saved: &mut [DVec3; 3],
+    ) -> (Option<DVec3>, DVec3) {
+        let _ = saved;
+        self.update(sigma, q)
+    }
+    /// [`Material::update_adj`] at the `sigma` and `q` that [`Material::update_saving`] saw,
+    /// from what it saved: the same result bit for bit, without recomputing the update.
+    fn update_adj_saved(
+        &self,
+        sigma: DVec3,
+        q: f64,
+        saved: &[DVec3; 3],
+        g_sigma_new: DVec3,
+        g_tau: DVec3,
+    ) -> UpdateAdj {
+        let _ = saved;
+        self.update_adj(sigma, q, g_sigma_new, g_tau)
+    }
 }
 
 /// What [`Material::update_adj`] returns.

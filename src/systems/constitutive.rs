@@ -34,15 +34,23 @@ pub fn constitutive_model<M: Material>(
         &mut DeformationGradient,
         &mut P2gAffine,
         Option<&mut Hardening>,
+        Option<&mut UpdateSaved>,
     )>,
 ) {
     let dt = params.dt_sub;
     let inv_dx2 = 1.0 / (grid.dx * grid.dx);
-    for (mat, body, svd, ft, c, mut f, mut aff, hard) in &mut bodies {
+    for (mat, body, svd, ft, c, mut f, mut aff, hard, saved) in &mut bodies {
         let stress_coef = -dt * body.particle_volume * 4.0 * inv_dx2;
         let mass = body.particle_mass;
-        let update = |i: usize, q: &mut f64, f_out: &mut DMat3, a_out: &mut DMat3| {
-            let (s_new, tau_p) = mat.update(svd.s[i], q);
+        let update = |i: usize,
+                      q: &mut f64,
+                      saved: Option<&mut [DVec3; 3]>,
+                      f_out: &mut DMat3,
+                      a_out: &mut DMat3| {
+            let (s_new, tau_p) = match saved {
+                Some(sv) => mat.update_saving(svd.s[i], q, sv),
+                None => mat.update(svd.s[i], q),
+            };
             *f_out = match s_new {
                 Some(s) => compose(svd.u[i], s, svd.v[i]),
                 None => ft.0[i],
@@ -50,19 +58,22 @@ pub fn constitutive_model<M: Material>(
             let tau = compose(svd.u[i], tau_p, svd.u[i]);
             *a_out = tau * stress_coef + c.0[i] * mass;
         };
-        match hard {
-            Some(mut h) => {
-                h.0.par_iter_mut()
-                    .zip(f.0.par_iter_mut().zip(aff.0.par_iter_mut()))
-                    .enumerate()
-                    .for_each(|(i, (q, (fo, ao)))| update(i, q, fo, ao));
-            }
-            None => {
-                f.0.par_iter_mut()
-                    .zip(aff.0.par_iter_mut())
-                    .enumerate()
-                    .for_each(|(i, (fo, ao))| update(i, &mut 0.0, fo, ao));
-            }
+        if let Some(sv) = &saved {
+            // The zip below would silently skip particles past a short buffer.
+            assert_eq!(sv.0.len(), svd.s.len(), "UpdateSaved sized for its body");
+        }
+        let fa = f.0.par_iter_mut().zip(aff.0.par_iter_mut()).enumerate();
+        match (hard, saved) {
+            (Some(mut h), Some(mut sv)) => fa
+                .zip(h.0.par_iter_mut().zip(sv.0.par_iter_mut()))
+                .for_each(|((i, (fo, ao)), (q, s))| update(i, q, Some(s), fo, ao)),
+            (Some(mut h), None) => fa
+                .zip(h.0.par_iter_mut())
+                .for_each(|((i, (fo, ao)), q)| update(i, q, None, fo, ao)),
+            (None, Some(mut sv)) => fa
+                .zip(sv.0.par_iter_mut())
+                .for_each(|((i, (fo, ao)), s)| update(i, &mut 0.0, Some(s), fo, ao)),
+            (None, None) => fa.for_each(|(i, (fo, ao))| update(i, &mut 0.0, None, fo, ao)),
         }
         for (field, idx) in [
             ("F", first_nonfinite_mat(&f.0)),
