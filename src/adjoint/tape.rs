@@ -143,7 +143,7 @@ struct BodyRecord {
     trial: Vec<DMat3>,
     svd: SvdFactors,
     /// What the material update saved for its adjoint.
-    saved: Vec<[DVec3; 3]>,
+    saved: Vec<crate::materials::Saved>,
     affine: Vec<DMat3>,
     order: ScatterOrder,
 }

@@ -56,7 +56,7 @@ pub struct SvdFactors {
 /// fills it through `Material::update_saving`, the records keep it per substep, and the
 /// adjoint reads it instead of redoing the logarithms and exponentials. Scratch.
 #[derive(Component, Clone, Debug, Default)]
-pub struct UpdateSaved(pub Vec<[DVec3; 3]>);
+pub struct UpdateSaved(pub Vec<crate::materials::Saved>);
 
 /// MLS-MPM affine matrix scattered by P2G: `m_p·C_p − Δt·V_p·(4/dx²)·τ_p`. Scratch.
 #[derive(Component, Clone, Debug, Default)]

@@ -1,7 +1,7 @@
 //! Drucker–Prager sand: StVK in Hencky strain with the Klár et al. 2016 return mapping and
 //! optional hardening. The maths is in `crate::math::return_map`.
 
-use super::{check_range, Material, UpdateAdj};
+use super::{check_range, Material, Saved, UpdateAdj, Updated};
 use crate::components::MaterialAdj;
 use crate::error::FieldError;
 use crate::math::return_map::{
@@ -175,12 +175,7 @@ impl Material for DruckerPrager {
 
     /// Saves `[ε, ε′, exp ε′]`.
     #[inline(always)]
-    fn update_saving(
-        &self,
-        sigma: DVec3,
-        q: &mut f64,
-        saved: &mut [DVec3; 3],
-    ) -> (Option<DVec3>, DVec3) {
+    fn update_saving(&self, sigma: DVec3, q: &mut f64, saved: &mut Saved) -> Updated {
         let p = self.project_at(sigma, *q);
         *q += p.dq;
         *saved = [p.eps, p.eps_new, p.sigma_new];
@@ -201,7 +196,7 @@ impl Material for DruckerPrager {
         &self,
         sigma: DVec3,
         _q: f64,
-        saved: &[DVec3; 3],
+        saved: &Saved,
         g_sigma_new: DVec3,
         g_tau: DVec3,
     ) -> UpdateAdj {

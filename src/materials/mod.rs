@@ -43,12 +43,7 @@ pub trait Material: Component + Clone + Send + Sync + 'static {
     fn update_adj(&self, sigma: DVec3, q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj;
     /// [`Material::update`], also writing into `saved` what [`Material::update_adj_saved`]
     /// reads back. By default nothing is saved.
-    fn update_saving(
-        &self,
-        sigma: DVec3,
-        q: &mut f64,
-        saved: &mut [DVec3; 3],
-    ) -> (Option<DVec3>, DVec3) {
+    fn update_saving(&self, sigma: DVec3, q: &mut f64, saved: &mut Saved) -> Updated {
         let _ = saved;
         self.update(sigma, q)
     }
@@ -58,7 +53,7 @@ pub trait Material: Component + Clone + Send + Sync + 'static {
         &self,
         sigma: DVec3,
         q: f64,
-        saved: &[DVec3; 3],
+        saved: &Saved,
         g_sigma_new: DVec3,
         g_tau: DVec3,
     ) -> UpdateAdj {
@@ -66,6 +61,12 @@ pub trait Material: Component + Clone + Send + Sync + 'static {
         self.update_adj(sigma, q, g_sigma_new, g_tau)
     }
 }
+
+/// What a material's update keeps for its adjoint (see `components::UpdateSaved`).
+pub type Saved = [DVec3; 3];
+
+/// A material update's projected singular values (if plastic) and principal Kirchhoff stresses.
+pub type Updated = (Option<DVec3>, DVec3);
 
 /// What [`Material::update_adj`] returns.
 #[derive(Clone, Copy, Debug)]

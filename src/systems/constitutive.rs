@@ -44,7 +44,7 @@ pub fn constitutive_model<M: Material>(
         let mass = body.particle_mass;
         let update = |i: usize,
                       q: &mut f64,
-                      saved: Option<&mut [DVec3; 3]>,
+                      saved: Option<&mut crate::materials::Saved>,
                       f_out: &mut DMat3,
                       a_out: &mut DMat3| {
             let (s_new, tau_p) = match saved {
