@@ -221,7 +221,6 @@ pub fn collider_contact_adjoint(
     add_collider_adjoints(&chunks, cs.iter_mut().map(|(_, _, _, a)| &mut **a));
 }
 
-/// Skips the empty nodes, as the forward does: their adjoint is dropped by the P2G adjoint.
 pub fn domain_walls_adjoint(
     params: Res<SimParams>,
     walls: Res<DomainWalls>,
@@ -229,34 +228,36 @@ pub fn domain_walls_adjoint(
     input: Res<WallInputVelocity>,
     mut adj: ResMut<GridAdj>,
 ) {
-    let n = grid.n;
-    let cells = walls.cells;
+    let (n, cells) = (grid.n, walls.cells);
     let m_min = params.empty_node_mass;
-    for_wall_nodes(&mut adj.velocity, n, cells, |coord, g| {
-        let idx = grid.index(coord[0], coord[1], coord[2]);
-        if grid.mass[idx] <= m_min {
-            return;
-        }
-        let mut normals = [DVec3::ZERO; 3];
-        let mut vin = [DVec3::ZERO; 3];
-        let mut v = input.0[idx];
-        let mut count = 0;
-        for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
-            normals[count] = normal;
-            vin[count] = v;
-            v = contact_response(v, DVec3::ZERO, normal, walls.mode, walls.friction);
-            count += 1;
-        }
-        for k in (0..count).rev() {
-            *g = contact_response_adj(
-                vin[k],
-                DVec3::ZERO,
-                normals[k],
-                walls.mode,
-                walls.friction,
-                *g,
-            )
-            .v;
-        }
-    });
+    for_wall_nodes(
+        &mut adj.velocity,
+        &grid.mass,
+        m_min,
+        n,
+        cells,
+        |coord, idx, g| {
+            let mut normals = [DVec3::ZERO; 3];
+            let mut vin = [DVec3::ZERO; 3];
+            let mut v = input.0[idx];
+            let mut count = 0;
+            for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
+                normals[count] = normal;
+                vin[count] = v;
+                v = contact_response(v, DVec3::ZERO, normal, walls.mode, walls.friction);
+                count += 1;
+            }
+            for k in (0..count).rev() {
+                *g = contact_response_adj(
+                    vin[k],
+                    DVec3::ZERO,
+                    normals[k],
+                    walls.mode,
+                    walls.friction,
+                    *g,
+                )
+                .v;
+            }
+        },
+    );
 }

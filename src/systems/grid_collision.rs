@@ -64,45 +64,44 @@ pub fn wall_normal(coord: [usize; 3], n: [usize; 3], cells: usize, a: usize) -> 
     Some(normal)
 }
 
-/// Calls `f(coord, node)` for every node of an x-major node array that lies in a wall layer,
-/// one x-plane per parallel task, without dividing flat indices (the integer divisions cost
-/// more than the response on the half of the nodes that are in no layer).
+/// Calls `f(coord, index, node)` for every non-empty node (`mass > m_min`) of an x-major node
+/// array that lies in a wall layer, one x-plane per parallel task, without dividing flat
+/// indices (the integer divisions cost more than the response on the half of the nodes that
+/// are in no layer). Empty nodes are skipped: P2G left their velocity at +0, which no wall
+/// response changes (see `contact_response`), and the P2G adjoint drops their adjoint, so the
+/// walls and their adjoint have nothing to do there.
 #[inline(always)]
 pub fn for_wall_nodes<T: Send>(
     nodes: &mut [T],
+    mass: &[f64],
+    m_min: f64,
     n: [usize; 3],
     cells: usize,
-    f: impl Fn([usize; 3], &mut T) + Sync,
+    f: impl Fn([usize; 3], usize, &mut T) + Sync,
 ) {
     let in_layer = |c: usize, a: usize| c < cells || c + cells >= n[a];
+    let plane_len = n[1] * n[2];
     nodes
-        .par_chunks_mut(n[1] * n[2])
+        .par_chunks_mut(plane_len)
         .enumerate()
         .for_each(|(i, plane)| {
             for (j, row) in plane.chunks_mut(n[2]).enumerate() {
                 let edge = in_layer(i, 0) || in_layer(j, 1);
+                let row0 = i * plane_len + j * n[2];
                 for (k, node) in row.iter_mut().enumerate() {
-                    if edge || in_layer(k, 2) {
-                        f([i, j, k], node);
+                    if (edge || in_layer(k, 2)) && mass[row0 + k] > m_min {
+                        f([i, j, k], row0 + k, node);
                     }
                 }
             }
         });
 }
 
-/// Empty nodes (`m ≤ m_min`) are skipped: P2G left their velocity at +0, which no response
-/// changes (see `contact_response`), and nothing reads them back (G2P weighs them, but by
-/// zero; the P2G adjoint drops their adjoint).
 pub fn domain_walls(params: Res<SimParams>, walls: Res<DomainWalls>, mut grid: ResMut<Grid>) {
-    let n = grid.n;
-    let cells = walls.cells;
-    let m_min = params.empty_node_mass;
+    let (n, cells) = (grid.n, walls.cells);
     let g = &mut *grid;
-    let mass = &g.mass;
-    for_wall_nodes(&mut g.velocity, n, cells, |coord, v| {
-        if mass[(coord[0] * n[1] + coord[1]) * n[2] + coord[2]] <= m_min {
-            return;
-        }
+    let m_min = params.empty_node_mass;
+    for_wall_nodes(&mut g.velocity, &g.mass, m_min, n, cells, |coord, _, v| {
         for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
             *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
         }
