@@ -187,6 +187,24 @@ pub fn sd_cut_hollow_sphere(p: DVec3, r: f64, h: f64, t: f64) -> (f64, DVec3) {
     (d - t, radial * g_rho + DVec3::new(0.0, g_y, 0.0))
 }
 
+/// A cup's cavity, the cylinder cut out of its solid one, as `(centre y, radius, half height)`
+/// in the cup's frame. It reaches from the floor to one outer radius above the rim, so the cup
+/// is open at the top.
+#[inline(always)]
+pub fn cup_cavity(
+    outer_radius: f64,
+    height: f64,
+    wall_thickness: f64,
+    floor_thickness: f64,
+) -> (f64, f64, f64) {
+    let top = height + outer_radius;
+    (
+        0.5 * (floor_thickness + top),
+        outer_radius - wall_thickness,
+        0.5 * (top - floor_thickness),
+    )
+}
+
 /// A spoon's rim and handle, in the spoon's frame: the height `h = bowl_depth − r` of the cut
 /// plane above the sphere centre, the rim point `a = (√(r² − h²), h, 0)` where the handle
 /// leaves, and the handle's run `d = (handle_length, handle_rise, 0)`: the handle's axis is the
@@ -232,14 +250,8 @@ impl Shape {
                 floor_thickness,
             } => {
                 let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
-                // The cavity extends above the rim so the cup is open at the top.
-                let top = height + outer_radius;
-                let inner = sd_cylinder_y(
-                    p,
-                    0.5 * (floor_thickness + top),
-                    outer_radius - wall_thickness,
-                    0.5 * (top - floor_thickness),
-                );
+                let (cy, r, hh) = cup_cavity(outer_radius, height, wall_thickness, floor_thickness);
+                let inner = sd_cylinder_y(p, cy, r, hh);
                 if outer.0 >= -inner.0 {
                     outer
                 } else {
@@ -284,9 +296,8 @@ impl Shape {
                 floor_thickness,
             } => {
                 let s = s + CLEAR_SLACK;
-                let top = height + outer_radius;
-                let (cy, hh) = (0.5 * (floor_thickness + top), 0.5 * (top - floor_thickness));
-                let r = outer_radius - wall_thickness - s;
+                let (cy, r, hh) = cup_cavity(outer_radius, height, wall_thickness, floor_thickness);
+                let r = r - s;
                 r > 0.0 && hh - (p.y - cy).abs() > s && p.x * p.x + p.z * p.z < r * r
             }
             Shape::Spoon {
@@ -366,12 +377,7 @@ impl Shape {
                 floor_thickness,
             } => {
                 let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
-                let top = height + outer_radius;
-                let (cy, r, hh) = (
-                    0.5 * (floor_thickness + top),
-                    outer_radius - wall_thickness,
-                    0.5 * (top - floor_thickness),
-                );
+                let (cy, r, hh) = cup_cavity(outer_radius, height, wall_thickness, floor_thickness);
                 let inner = sd_cylinder_y(p, cy, r, hh);
                 if outer.0 >= -inner.0 {
                     Some(cylinder_hessian(
