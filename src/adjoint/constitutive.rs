@@ -57,7 +57,10 @@ pub fn constitutive_model_adjoint<M: Material>(
         let m = body.particle_mass;
         let n = svd.u.len();
         // What the recomputed forward saved of the material update, if it saved it.
-        let saved = saved.map(|s| &s.0[..]).filter(|s| s.len() == n);
+        let saved = saved.map(|s| &s.0[..]);
+        if let Some(sv) = saved {
+            assert_eq!(sv.len(), n, "UpdateSaved sized for its body");
+        }
         let g_svd = &mut *g_svd;
         // One partial sum of the material gradient per chunk of REDUCE_CHUNK particles, in
         // particle order, into a buffer kept between substeps.

@@ -3,12 +3,13 @@
 //! The forward pass stores the particle state every `k` global steps (a checkpoint). The
 //! backward pass walks the segments between checkpoints from last to first: it restores the
 //! segment's checkpoint, recomputes the segment's step-start states, and for each step in
-//! reverse recomputes its substep-start states, then reverses each substep: restore its start
-//! state, re-run the forward stages up to G2P (which refills the SVD factors, the P2G affine
-//! term and the grid), and run the adjoint stages in reverse order.
+//! reverse recomputes its substeps once, keeping a `SubstepRecord` of each (the substep-start
+//! state, the SVD factors, the material's saved update, the P2G affine term and scatter order,
+//! the grid and the contact inputs), then reverses the substeps from their records, running the
+//! adjoint stages in reverse order.
 //!
-//! Memory: `O(T/k·N + k·N + N_sub·N)` particle states of `(x, v, C, F, V_svd)`; `k` comes from
-//! a memory budget ([`checkpoint_interval`]). The SVD's warm-start `V` is part of the stored
+//! Memory: `O(T/k·N + k·N)` particle states of `(x, v, C, F, V_svd)` plus `N_sub` substep
+//! records; `k` comes from a memory budget ([`checkpoint_interval`]). The SVD's warm-start `V` is part of the stored
 //! state, so a recomputed substep is bitwise the original one and the gradient does not depend
 //! on `k` or on the thread count.
 
