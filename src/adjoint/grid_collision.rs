@@ -18,13 +18,7 @@ use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-/// Grid velocity entering the domain-wall response, saved by the backward driver.
-#[derive(Resource, Clone, Debug, Default)]
-pub struct WallInputVelocity(pub Vec<DVec3>);
-
-/// Grid velocity entering the collider response, saved by the backward driver.
-#[derive(Resource, Clone, Debug, Default)]
-pub struct ColliderInputVelocity(pub Vec<DVec3>);
+pub use crate::components::{ColliderInputVelocity, WallInputVelocity};
 
 /// Adjoints of a collider's parameters and motion: `∂L/∂μ`, and for a tool `∂L/∂t` (its
 /// current translation), `∂L/∂θ` (its current rotation, as a world-frame rotation-vector

@@ -14,7 +14,7 @@
 //! on `k` or on the thread count.
 
 use crate::adjoint::gravity::GravityAdj;
-use crate::adjoint::grid_collision::{ColliderAdj, ColliderInputVelocity, WallInputVelocity};
+use crate::adjoint::grid_collision::ColliderAdj;
 pub use crate::adjoint::loss::Loss;
 use crate::adjoint::particle_collision::ParticleCollisionInput;
 use crate::adjoint::tool_move::ControlAdj;
@@ -632,8 +632,10 @@ fn gradient_in_pool(
             UpdateSaved(vec![[DVec3::ZERO; 3]; n]),
         ));
     }
-    // The forward and the adjoint stages, one schedule each, so the driver can save the contact
-    // inputs between forward stages and check finiteness between adjoint stages.
+    // The forward and the adjoint stages, one schedule each, so the driver can take the
+    // substep-start state between forward stages and check finiteness between adjoint stages.
+    // (The contact stages save their inputs themselves into the two input resources inserted
+    // above.)
     let mut forward: Vec<(Stage, Schedule)> = Stage::ALL
         .iter()
         .filter_map(|&st| {
@@ -654,10 +656,6 @@ fn gradient_in_pool(
     // the stage that overwrites them, or must copy them because the plan lacks that stage.
     let runs = |st: Stage| forward.iter().any(|(s, _)| *s == st);
     let (swap_f, swap_vc) = (runs(Stage::Constitutive), runs(Stage::G2p));
-    let mut collider_only = new_schedule();
-    collider_only.add_systems(systems::grid_collision::collider_contact);
-    let mut walls_only = new_schedule();
-    walls_only.add_systems(systems::grid_collision::domain_walls);
 
     let mut body_ents: Vec<(usize, Entity)> = ents.iter().map(|&(e, bi, _)| (bi, e)).collect();
     body_ents.sort_by_key(|e| e.0);
@@ -746,27 +744,6 @@ fn gradient_in_pool(
                             }
                             let world = &mut sim.world;
                             run_in(&sim.pool, || s.run(world));
-                        }
-                        Stage::GridCollision => {
-                            // Save the inputs of the collider and wall responses.
-                            {
-                                let w = &mut sim.world;
-                                let v = std::mem::take(&mut w.resource_mut::<Grid>().velocity);
-                                w.resource_mut::<ColliderInputVelocity>().0.clone_from(&v);
-                                w.resource_mut::<Grid>().velocity = v;
-                            }
-                            if plan.has_colliders {
-                                let world = &mut sim.world;
-                                run_in(&sim.pool, || collider_only.run(world));
-                            }
-                            {
-                                let w = &mut sim.world;
-                                let v = std::mem::take(&mut w.resource_mut::<Grid>().velocity);
-                                w.resource_mut::<WallInputVelocity>().0.clone_from(&v);
-                                w.resource_mut::<Grid>().velocity = v;
-                            }
-                            let world = &mut sim.world;
-                            run_in(&sim.pool, || walls_only.run(world));
                         }
                         _ => {
                             let world = &mut sim.world;

@@ -31,6 +31,18 @@ pub struct Grid {
     pub velocity: Vec<DVec3>,
 }
 
+/// Grid velocity entering the collider response at the nodes it acts on (the non-empty ones),
+/// saved by the forward collider stage when the resource exists (the backward driver's
+/// recomputation inserts it; a plain forward run does not), for the adjoint to replay the
+/// responses from. Other entries are stale and never read.
+#[derive(Resource, Clone, Debug, Default)]
+pub struct ColliderInputVelocity(pub Vec<DVec3>);
+
+/// Grid velocity entering the domain-wall response at the nodes it acts on (the non-empty
+/// wall-layer ones), saved like [`ColliderInputVelocity`].
+#[derive(Resource, Clone, Debug, Default)]
+pub struct WallInputVelocity(pub Vec<DVec3>);
+
 impl Grid {
     pub fn new(origin: DVec3, dx: f64, n: [usize; 3]) -> Self {
         let len = n[0] * n[1] * n[2];

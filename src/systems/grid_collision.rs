@@ -18,6 +18,7 @@ pub fn collider_contact(
     params: Res<SimParams>,
     mut grid: ResMut<Grid>,
     colliders: Query<(&Collider, &ColliderPose, Option<&NodeContacts>)>,
+    mut save: Option<ResMut<ColliderInputVelocity>>,
 ) {
     let mut cs: Vec<_> = colliders
         .iter()
@@ -27,27 +28,33 @@ pub fn collider_contact(
     let m_min = params.empty_node_mass;
     let g = &mut *grid;
     let (origin, dx, n) = (g.origin, g.dx, g.n);
-    g.velocity
-        .par_iter_mut()
-        .zip(g.mass.par_iter())
-        .enumerate()
-        .for_each(|(idx, (v, &m))| {
-            if m <= m_min {
-                return;
+    let node = |idx: usize, v: &mut DVec3, m: f64, saved: Option<&mut DVec3>| {
+        if m <= m_min {
+            return;
+        }
+        if let Some(s) = saved {
+            *s = *v;
+        }
+        let k = idx % n[2];
+        let j = (idx / n[2]) % n[1];
+        let i = idx / (n[1] * n[2]);
+        let x = origin + DVec3::new(i as f64, j as f64, k as f64) * dx;
+        for &(c, pose, table) in &cs {
+            if let Some((phi, normal)) = node_contact(c, pose, table, idx, x) {
+                let r = contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
+                let (w, _) = band_weight(phi, c.band, c.soft_band);
+                *v = if w == 1.0 { r } else { *v + (r - *v) * w };
             }
-            let k = idx % n[2];
-            let j = (idx / n[2]) % n[1];
-            let i = idx / (n[1] * n[2]);
-            let x = origin + DVec3::new(i as f64, j as f64, k as f64) * dx;
-            for &(c, pose, table) in &cs {
-                if let Some((phi, normal)) = node_contact(c, pose, table, idx, x) {
-                    let r =
-                        contact_response(*v, pose.velocity_at(x), normal, c.contact, c.friction);
-                    let (w, _) = band_weight(phi, c.band, c.soft_band);
-                    *v = if w == 1.0 { r } else { *v + (r - *v) * w };
-                }
-            }
-        });
+        }
+    };
+    let nodes = g.velocity.par_iter_mut().zip(g.mass.par_iter()).enumerate();
+    match save.as_deref_mut() {
+        // The backward driver's recomputation: the input of every node acted on is saved.
+        Some(s) => nodes
+            .zip(s.0.par_iter_mut())
+            .for_each(|((idx, (v, &m)), s)| node(idx, v, m, Some(s))),
+        None => nodes.for_each(|(idx, (v, &m))| node(idx, v, m, None)),
+    }
 }
 
 /// The inward wall normal along axis `a` of the node at `coord`, if it lies in a wall layer.
@@ -97,10 +104,21 @@ pub fn for_wall_nodes<T: Send>(
         });
 }
 
-pub fn domain_walls(params: Res<SimParams>, walls: Res<DomainWalls>, mut grid: ResMut<Grid>) {
+pub fn domain_walls(
+    params: Res<SimParams>,
+    walls: Res<DomainWalls>,
+    mut grid: ResMut<Grid>,
+    mut save: Option<ResMut<WallInputVelocity>>,
+) {
     let (n, cells) = (grid.n, walls.cells);
     let g = &mut *grid;
     let m_min = params.empty_node_mass;
+    if let Some(s) = save.as_deref_mut() {
+        // The backward driver's recomputation: the input of every node acted on is saved (a
+        // walk over the wall layers, far cheaper than copying the whole grid).
+        let v = &g.velocity;
+        for_wall_nodes(&mut s.0, &g.mass, m_min, n, cells, |_, idx, s| *s = v[idx]);
+    }
     for_wall_nodes(&mut g.velocity, &g.mass, m_min, n, cells, |coord, _, v| {
         for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
             *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
