@@ -936,6 +936,10 @@ struct OptimizeArgs {
     /// Last epoch of the curriculum's scoop-only phase (θ_d, θ_s, θ_l).
     #[arg(long, default_value_t = 15)]
     curriculum_switch: usize,
+    /// Scale each gradient to unit length before RMSprop (not the paper's method; see the
+    /// README's skill-optimisation section).
+    #[arg(long)]
+    grad_normalize: bool,
     /// CMA-ES samples per generation.
     #[arg(long, default_value_t = 6)]
     cmaes_population: usize,
@@ -967,6 +971,7 @@ fn optimize_cmd(args: OptimizeArgs) -> Result<()> {
         threads,
         lr,
         curriculum_switch,
+        grad_normalize,
         cmaes_population,
         cmaes_sigma,
         sac_batch,
@@ -1018,6 +1023,7 @@ fn optimize_cmd(args: OptimizeArgs) -> Result<()> {
         rmsprop: optim::rmsprop::RmsProp {
             lr,
             switch_epoch: curriculum_switch,
+            normalize: grad_normalize,
             ..Default::default()
         },
         cmaes: optim::cma::CmaConfig {

@@ -8,6 +8,13 @@
 //! running mean square `s_k` (it has not been seen, so it neither decays nor grows). Epochs
 //! 1 … `switch_epoch` update only θ_d, θ_s, θ_l (the scoop: depth, angle, lift); later epochs
 //! update all five.
+//!
+//! Optionally (`normalize`, off by default: the paper's method is the default) the gradient of
+//! the parameters allowed to move is scaled to unit length before it enters the running mean
+//! square. On the transport scene single rollouts return gradients hundreds of times the usual
+//! size (contacts in a chaotic pour; measured in the README), and one such spike holds `s` up
+//! for tens of epochs (it decays by β = 0.9 per epoch), shrinking every later step to almost
+//! nothing. A unit gradient keeps the direction and lets no single rollout set the step size.
 
 use serde::{Deserialize, Serialize};
 
@@ -22,6 +29,9 @@ pub struct RmsProp {
     pub eps: f64,
     /// Last epoch (1-based) of the scoop-only phase of the curriculum. Default 15.
     pub switch_epoch: usize,
+    /// Scale the moving parameters' gradient to unit length first. Default false.
+    #[serde(default)]
+    pub normalize: bool,
 }
 
 impl Default for RmsProp {
@@ -31,6 +41,7 @@ impl Default for RmsProp {
             beta: 0.9,
             eps: 1e-8,
             switch_epoch: 15,
+            normalize: false,
         }
     }
 }
@@ -55,6 +66,17 @@ impl RmsProp {
     /// One step at `epoch` (1-based) with gradient `g`.
     pub fn step(&self, state: &mut RmsState, g: [f64; 5], epoch: usize) {
         let mask = curriculum_mask(epoch, self.switch_epoch);
+        let mut g = g;
+        if self.normalize {
+            let norm = (0..5)
+                .filter(|&k| mask[k])
+                .map(|k| g[k] * g[k])
+                .sum::<f64>()
+                .sqrt();
+            if norm > 0.0 {
+                g = g.map(|x| x / norm);
+            }
+        }
         for k in 0..5 {
             if !mask[k] {
                 continue;
@@ -117,6 +139,52 @@ mod tests {
         opt.step(&mut st, [1.0; 5], 15);
         assert_eq!(st.theta[3..], [0.0, 0.0]);
         assert!(st.theta[..3].iter().all(|t| *t < 0.0));
+    }
+
+    /// Round-off of a few operations on O(0.1) values (`1 − β` is not exactly 0.1).
+    const ROUND_OFF: f64 = 1e-15;
+    /// What ε = 1e-8 in the denominator changes a step of ≤ 0.1 over √s ≥ 0.3 by, with room.
+    const EPS_EFFECT: f64 = 1e-8;
+
+    /// With `normalize`, a gradient and the same gradient times 1000 give the same steps, and
+    /// the frozen components do not count in the length.
+    #[test]
+    fn normalized_steps_do_not_depend_on_the_gradient_size() {
+        let opt = RmsProp {
+            normalize: true,
+            ..Default::default()
+        };
+        let start = RmsState {
+            theta: [0.1, -0.2, 0.3, 0.4, -0.5],
+            mean_square: [0.0; 5],
+        };
+        let g = [3.0, -4.0, 0.0, 50.0, 50.0];
+        let (mut a, mut b) = (start, start);
+        opt.step(&mut a, g, 1);
+        opt.step(&mut b, g.map(|x| x * 1000.0), 1);
+        assert_eq!(a, b);
+        // Unit length over θ_d, θ_s, θ_l: (0.6, −0.8, 0), so s = 0.1·(0.36, 0.64, 0).
+        for (got, want) in a.mean_square.iter().zip([0.036, 0.064, 0.0]) {
+            assert!((got - want).abs() < ROUND_OFF, "{got} vs {want}");
+        }
+        assert_eq!(a.theta[3..], start.theta[3..]);
+        // A spike of 500 in θ_d, then a unit gradient: the paper's RMSprop then moves θ_d by
+        // lr/√(0.9·0.1·500² + 0.1) ≈ 3.3e-4, the normalised one by
+        // lr·(1/√3)/√(0.9·0.1 + 0.1/3) ≈ 0.082.
+        let spike = [500.0, 0.0, 0.0, 0.0, 0.0];
+        let second_move = |opt: &RmsProp| {
+            let mut st = start;
+            opt.step(&mut st, spike, 1);
+            let after_spike = st.theta[0];
+            opt.step(&mut st, [1.0; 5], 2);
+            (st.theta[0] - after_spike).abs()
+        };
+        let plain = second_move(&RmsProp::default());
+        let unit = second_move(&opt);
+        let want = 0.05 / (0.09f64 * 250_000.0 + 0.1).sqrt();
+        assert!((plain - want).abs() < EPS_EFFECT, "{plain} vs {want}");
+        let want = 0.05 / 3f64.sqrt() / (0.09f64 + 0.1 / 3.0).sqrt();
+        assert!((unit - want).abs() < EPS_EFFECT, "{unit} vs {want}");
     }
 
     #[test]
