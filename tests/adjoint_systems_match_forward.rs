@@ -266,6 +266,12 @@ fn p2g() {
         + dotv(&w.get::<VelocityAdj>(e).unwrap().0, &dv)
         + dotm(&w.get::<P2gAffineAdj>(e).unwrap().0, &da);
     check("p2g", fd, ad);
+    // P2G overwrites every node's velocity, so its adjoint consumes the velocity adjoint.
+    assert!(w
+        .resource::<GridAdj>()
+        .velocity
+        .iter()
+        .all(|g| *g == DVec3::ZERO));
 }
 
 #[test]

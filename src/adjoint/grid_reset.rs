@@ -1,13 +1,5 @@
-//! Adjoint of stage 1, grid reset. The forward zeroes the grid, so no gradient flows through
-//! it; the adjoint zeroes the grid velocity adjoint so the previous substep starts clean. Exact.
-//! The mass and momentum adjoints need no reset: the P2G adjoint sets them from the velocity
-//! adjoint each substep before anything reads them.
-
-use crate::components::GridAdj;
-use bevy_ecs::prelude::*;
-use glam::DVec3;
-use rayon::prelude::*;
-
-pub fn grid_reset_adjoint(mut adj: ResMut<GridAdj>) {
-    adj.velocity.par_iter_mut().for_each(|v| *v = DVec3::ZERO);
-}
+//! Adjoint of stage 1, grid reset: no work. The forward sets the node mass and momentum to the
+//! constant 0, so no gradient flows through it, and nothing is left to clear: the P2G adjoint
+//! sets (not accumulates) the mass and momentum adjoints each substep, and consumes the grid
+//! velocity adjoint, because P2G, not the reset, writes every node's velocity. The stage
+//! therefore adds no system to the adjoint schedule (`add_adjoint_stage`).

@@ -66,9 +66,8 @@ pub struct SubstepAdjoint;
 /// Adds the adjoint systems of one stage. Returns whether any was added.
 pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> bool {
     match stage {
-        Stage::GridReset => {
-            schedule.add_systems(grid_reset::grid_reset_adjoint.in_set(stage));
-        }
+        // Nothing to do (see `grid_reset`'s module docs).
+        Stage::GridReset => return false,
         Stage::DeformationUpdate => {
             schedule.add_systems(deformation_update::deformation_update_adjoint.in_set(stage));
         }

@@ -10,7 +10,7 @@
 //! ```
 //!
 //! Exact except at the empty-node threshold `m_i = m_min` (a kink: one-sided). Reads the
-//! substep-start `x`, `v`; accumulates `v̄`, `Ā`, `x̄`.
+//! substep-start `x`, `v`; consumes the grid's `v̄` (zeroes it); accumulates `v̄`, `Ā`, `x̄`.
 
 use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
@@ -38,7 +38,9 @@ pub fn p2g_adjoint(
     let dx = grid.dx;
     let inv_dx = 1.0 / dx;
     // Node adjoints of momentum and mass from v = p/m, into the grid adjoint's own buffers (no
-    // allocation per substep). Nothing else writes them, so they are set, not accumulated.
+    // allocation per substep). Nothing else writes them, so they are set, not accumulated. P2G
+    // writes every node's velocity without reading it, so v̄ is consumed here: zeroed, for the
+    // previous substep's G2P adjoint to accumulate into.
     let GridAdj {
         mass: g_m,
         momentum: g_p,
@@ -46,7 +48,7 @@ pub fn p2g_adjoint(
     } = &mut *adj;
     g_p.par_iter_mut()
         .zip(g_m.par_iter_mut())
-        .zip(g_v.par_iter())
+        .zip(g_v.par_iter_mut())
         .zip(grid.mass.par_iter().zip(grid.momentum.par_iter()))
         .for_each(|(((gp, gm), gv), (&m, &p))| {
             (*gp, *gm) = if m > m_min {
@@ -54,6 +56,7 @@ pub fn p2g_adjoint(
             } else {
                 (DVec3::ZERO, 0.0)
             };
+            *gv = DVec3::ZERO;
         });
     let (g_p, g_m) = (&*g_p, &*g_m);
     for (body, start, aff, mut gx, mut gv, mut ga) in &mut bodies {
