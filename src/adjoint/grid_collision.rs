@@ -1,15 +1,15 @@
 //! Adjoint of stage 8, grid collision. Domain walls: the forward applies the contact response
 //! for each axis in turn, with a fixed axis normal and zero wall velocity; the adjoint replays
-//! the three responses from the stored input velocity and applies `contact_response_adj` in
-//! reverse. Exact inside each contact regime, one-sided at the switches (see
-//! `crate::math::contact`).
+//! the three responses from the input velocity the forward saved ([`WallInputVelocity`]) and
+//! applies `contact_response_adj` in reverse. Exact inside each contact regime, one-sided at
+//! the switches (see `crate::math::contact`).
 //!
-//! Static containers: the adjoint replays each node's sequence of container responses from the
-//! stored input velocity (the normal and band test depend only on the node position, which is
-//! fixed) and reverses it, accumulating `∂L/∂v` and `∂L/∂μ` per container. The band test
-//! `φ < band` is a contact on/off switch: the gradient is that of the side the forward pass
-//! took (one-sided). Kinematic tools (whose pose depends on the controls) are not
-//! differentiated yet: the backward driver refuses scenes with tools.
+//! Colliders: the adjoint replays each node's sequence of collider responses from the saved
+//! input velocity ([`ColliderInputVelocity`]) and reverses it, accumulating `∂L/∂v` and `∂L/∂μ`
+//! per collider, and for a tool the adjoints of its pose and velocity
+//! (`NodeAdj::add_tool_contact`). The band test `φ < band` is a contact on/off switch: the
+//! gradient is that of the side the forward pass took (one-sided; see
+//! [`collider_contact_adjoint`] for the soft band).
 
 use crate::components::*;
 use crate::math::contact::{band_weight, contact_response, contact_response_adj};
