@@ -24,9 +24,19 @@ fn cos(a: &[f64; 5], b: &[f64; 5]) -> f64 {
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();
+    if a.len() != 6 {
+        anyhow::bail!(
+            "usage: smoothed_gradient SCENE THETA SIGMA N H (THETA: 5 values, comma separated)"
+        );
+    }
     let p = Problem::new(Scene::load(&a[1])?, 1 << 30)?;
-    let t0: Vec<f64> = a[2].split(',').map(|s| s.parse().unwrap()).collect();
-    let t0: [f64; 5] = std::array::from_fn(|i| t0[i]);
+    let t0 = a[2]
+        .split(',')
+        .map(str::parse)
+        .collect::<Result<Vec<f64>, _>>()?;
+    let t0: [f64; 5] = t0
+        .try_into()
+        .map_err(|t: Vec<f64>| anyhow::anyhow!("THETA has {} values, expected 5", t.len()))?;
     let sigma: f64 = a[3].parse()?;
     let n: usize = a[4].parse()?;
     let h: f64 = a[5].parse()?;
@@ -67,6 +77,14 @@ fn main() -> anyhow::Result<()> {
         "mean: cos {:+.3} {:?}",
         cos(&mean, &s),
         mean.map(|x| (x * 100.0).round() / 100.0)
+    );
+    let mut norms: Vec<f64> = gs.iter().map(norm).collect();
+    norms.sort_by(f64::total_cmp);
+    let positive = gs.iter().filter(|g| cos(g, &s) > 0.0).count();
+    println!(
+        "{positive}/{n} samples with a positive cosine; gradient norms: median {:.2}, largest {:.2}",
+        norms[n / 2],
+        norms[n - 1]
     );
     Ok(())
 }

@@ -64,9 +64,8 @@ pub struct RmsState {
 
 impl RmsProp {
     /// One step at `epoch` (1-based) with gradient `g`.
-    pub fn step(&self, state: &mut RmsState, g: [f64; 5], epoch: usize) {
+    pub fn step(&self, state: &mut RmsState, mut g: [f64; 5], epoch: usize) {
         let mask = curriculum_mask(epoch, self.switch_epoch);
-        let mut g = g;
         if self.normalize {
             let norm = (0..5)
                 .filter(|&k| mask[k])
