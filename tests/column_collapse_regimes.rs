@@ -18,10 +18,11 @@ const CELLS_LARGE_A: usize = 8;
 fn runout(a: f64, cells: usize) -> f64 {
     let r = run_collapse(&Collapse::new(a, cells), Some(2), |_| {}).unwrap();
     println!(
-        "a = {a}: ΔL/L0 = {:.3} (law {:.3}), arrest {:?} T_c, {} particles, {:.1} s",
+        "a = {a}: ΔL/L0 = {:.3} (law {:.3}), at rest {:?} T_c, front arrest {:?} T_c, {} particles, {:.1} s",
         r.runout_ratio,
         lube_runout(a),
         r.arrest_tc,
+        r.front_arrest_tc,
         r.particles,
         r.wall_s
     );

@@ -362,6 +362,9 @@ fn run_collapse_config(cfg: &Config) -> anyhow::Result<ConfigResult> {
     if let Some(t) = r.arrest_tc {
         values.insert("arrest_tc".to_string(), t);
     }
+    if let Some(t) = r.front_arrest_tc {
+        values.insert("front_arrest_tc".to_string(), t);
+    }
     Ok(ConfigResult {
         config: cfg.clone(),
         particles: r.particles,

@@ -377,6 +377,7 @@ mod tests {
                 aspect: PILE_ASPECT,
                 runout_ratio: 0.5,
                 arrest_tc: Some(3.0),
+                front_arrest_tc: Some(2.5),
                 particles: 1,
                 substeps: 1,
                 substeps_per_step: 1,
