@@ -233,6 +233,9 @@ pub struct Collapse {
     pub particles_per_cell: usize,
     /// CFL number of the stability guard: the substeps follow from it.
     pub cfl: f64,
+    /// Room ahead of the column, as a multiple of the law's front `(1 + ΔL/L₀)·L₀` (2 in the
+    /// validation): a run-out that reaches the far wall is capped by it.
+    pub room: f64,
 }
 
 impl Collapse {
@@ -246,6 +249,7 @@ impl Collapse {
             floor_friction: 0.577,
             particles_per_cell: 8,
             cfl: 0.5,
+            room: 2.0,
         }
     }
 }
@@ -298,7 +302,7 @@ pub fn collapse_scene(c: &Collapse) -> String {
     let h0 = c.aspect * c.length;
     let wall = COLLAPSE_WALL_CELLS;
     let predicted = lube_runout(c.aspect) + 1.0;
-    let nx = wall * 2 + (2.0 * predicted * c.cells_across as f64).ceil() as usize + 8;
+    let nx = wall * 2 + (c.room * predicted * c.cells_across as f64).ceil() as usize + 8;
     let ny = wall * 2 + (h0 / dx).ceil() as usize + 4;
     let nz = wall * 2 + COLLAPSE_SLAB_CELLS - 1;
     let x0 = wall as f64 * dx;
