@@ -23,6 +23,22 @@ def last_json(text):
     raise RuntimeError("no JSON line in output:\n" + text[-2000:])
 
 
+def cpu_model():
+    """The CPU's model name and whether it has AVX-512: Taichi's speed differs by several tens of
+    percent between the CPU kinds this project's machines have been (Intel Sapphire Rapids class
+    with AVX-512, AMD EPYC with AVX2 only), more than powderlab's, so every ratio names its CPU."""
+    model, avx512 = "unknown", False
+    try:
+        for line in pathlib.Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name") and model == "unknown":
+                model = line.split(":", 1)[1].strip()
+            if line.startswith("flags"):
+                avx512 = avx512 or " avx512f" in line
+    except OSError:
+        pass
+    return model, avx512
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--n-grid", type=int, default=48)
@@ -84,7 +100,10 @@ def main():
               f"powderlab {row['powderlab_particle_substeps_per_s']/1e6:.3f} M/s, ratio {row['ratio']:.2f}",
               file=sys.stderr)
     ratios = sorted(r["ratio"] for r in rows)
-    print(json.dumps({"n_grid": args.n_grid, "threads": args.threads, "rounds": rows,
+    model, avx512 = cpu_model()
+    print(f"cpu: {model}, AVX-512 {'yes' if avx512 else 'no'}", file=sys.stderr)
+    print(json.dumps({"n_grid": args.n_grid, "threads": args.threads, "cpu": model,
+                      "avx512": avx512, "rounds": rows,
                       "median_ratio": ratios[len(ratios) // 2]}))
 
 
