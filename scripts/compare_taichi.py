@@ -24,9 +24,10 @@ def last_json(text):
 
 
 def cpu_model():
-    """The CPU's model name and whether it has AVX-512: Taichi's speed differs by several tens of
-    percent between the CPU kinds this project's machines have been (Intel Sapphire Rapids class
-    with AVX-512, AMD EPYC with AVX2 only), more than powderlab's, so every ratio names its CPU."""
+    """The CPU's model name and whether it has AVX-512. Taichi's speed has differed by about 2x
+    between sittings, more than powderlab's, and this project's machines have been of more than
+    one CPU kind (an Intel Sapphire Rapids class with AVX-512, an AMD EPYC with AVX2 only); whether
+    the two are linked is not known, so every ratio names its CPU."""
     model, avx512 = "unknown", False
     try:
         for line in pathlib.Path("/proc/cpuinfo").read_text().splitlines():
