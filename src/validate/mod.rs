@@ -384,21 +384,21 @@ pub fn run_collapse(
             v.iter().map(|v| 0.5 * v.length_squared()).sum()
         });
         let t = k as f64 * dt;
-        fronts.push((t, deposit_front(&xs, dx, min_count)));
+        fronts.push((t, deposit_front_cells(&xs, dx, min_count)));
         progress(t / (6.0 * tc));
         if t > tc && ke < 1e-6 * pe0 {
             arrest = Some(t / tc);
             break;
         }
     }
+    // The last step's front is the deposit's (the loop runs at least one step).
+    let front = fronts.last().map_or(0, |f| f.1) as f64 * dx;
     let st = sim.body_states();
-    let xs: Vec<f64> = st[0].x.iter().map(|x| x.x - x_wall).collect();
-    let front = deposit_front(&xs, dx, min_count);
     Ok(CollapseResult {
         aspect: c.aspect,
         runout_ratio: (front - c.length) / c.length,
         arrest_tc: arrest,
-        front_arrest_tc: front_arrest(&fronts, dx).map(|t| t / tc),
+        front_arrest_tc: front_arrest(&fronts, 1).map(|t| t / tc),
         particles: xs.len(),
         substeps: sim.clock().total_substeps,
         substeps_per_step: sim.params().substeps,
@@ -407,12 +407,15 @@ pub fn run_collapse(
     })
 }
 
-/// The arrest time of a front trace `(t, front)`: the first time after which the front stays
-/// within `tol` of its last value (the first sample's time if it always did). `tol` is one cell
-/// in [`run_collapse`], the resolution of [`deposit_front`]; `None` for an empty trace.
-pub fn front_arrest(trace: &[(f64, f64)], tol: f64) -> Option<f64> {
+/// The arrest time of a front trace `(t, front in cells)`: the first time after which the front
+/// stays within `tol` cells of its last value (the first sample's time if it always did). `tol`
+/// is one cell in [`run_collapse`], the resolution of [`deposit_front`]. The trace is in whole
+/// cells, not metres: adjacent bin edges `(b + 1)·dx` differ by more than `dx` in floating point
+/// for many `b`, which made "within one cell" mean "in the same cell" there. `None` for an empty
+/// trace.
+pub fn front_arrest(trace: &[(f64, usize)], tol: usize) -> Option<f64> {
     let &(_, last) = trace.last()?;
-    let moved = trace.iter().rposition(|&(_, f)| (f - last).abs() > tol);
+    let moved = trace.iter().rposition(|&(_, f)| f.abs_diff(last) > tol);
     Some(match moved {
         Some(i) => trace[i + 1].0,
         None => trace[0].0,
@@ -432,6 +435,11 @@ pub fn front_min_count(particles_per_cell: usize) -> usize {
 /// `min_count` particles. Unlike a percentile of all particles, this follows the thin tip of a
 /// low column's deposit, and a lone particle ahead of the front does not count.
 pub fn deposit_front(xs: &[f64], dx: f64, min_count: usize) -> f64 {
+    deposit_front_cells(xs, dx, min_count) as f64 * dx
+}
+
+/// [`deposit_front`] in whole cells from `x = 0` (0 when no bin holds `min_count` particles).
+pub fn deposit_front_cells(xs: &[f64], dx: f64, min_count: usize) -> usize {
     let max = xs.iter().copied().fold(0.0, f64::max);
     let nb = (max / dx).ceil() as usize + 1;
     let mut counts = vec![0usize; nb];
@@ -441,7 +449,7 @@ pub fn deposit_front(xs: &[f64], dx: f64, min_count: usize) -> f64 {
     counts
         .iter()
         .rposition(|&c| c >= min_count)
-        .map_or(0.0, |b| (b + 1) as f64 * dx)
+        .map_or(0, |b| b + 1)
 }
 
 /// Least-squares slope of `ln y` against `ln x`.
@@ -611,6 +619,9 @@ mod tests {
         xs.extend([2.1, 2.2, 2.3, 2.9, 7.5]);
         assert_eq!(deposit_front(&xs, 1.0, 4), 3.0);
         assert_eq!(deposit_front(&xs, 1.0, 5), 1.0);
+        // In whole cells, the same fronts, and 0 where no bin has enough particles.
+        assert_eq!(deposit_front_cells(&xs, 1.0, 4), 3);
+        assert_eq!(deposit_front_cells(&xs, 1.0, 6), 0);
     }
 
     #[test]
@@ -618,17 +629,17 @@ mod tests {
         // Advances, reaches within one cell of 10 at t = 3, overshoots back out at t = 4
         // (|12 − 10| > 1), then stays within a cell from t = 5 on.
         let trace = [
-            (1.0, 2.0),
-            (2.0, 6.0),
-            (3.0, 9.0),
-            (4.0, 12.0),
-            (5.0, 10.5),
-            (6.0, 9.5),
-            (7.0, 10.0),
+            (1.0, 2),
+            (2.0, 6),
+            (3.0, 9),
+            (4.0, 12),
+            (5.0, 11),
+            (6.0, 9),
+            (7.0, 10),
         ];
-        assert_eq!(front_arrest(&trace, 1.0), Some(5.0));
+        assert_eq!(front_arrest(&trace, 1), Some(5.0));
         // A front that never moved arrested at the first sample; an empty trace has no time.
-        assert_eq!(front_arrest(&[(0.5, 3.0), (1.0, 3.0)], 1.0), Some(0.5));
-        assert_eq!(front_arrest(&[], 1.0), None);
+        assert_eq!(front_arrest(&[(0.5, 3), (1.0, 3)], 1), Some(0.5));
+        assert_eq!(front_arrest(&[], 1), None);
     }
 }
