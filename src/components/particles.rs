@@ -68,7 +68,11 @@ pub struct P2gAffine(pub Vec<DMat3>);
 pub struct ScatterOrder {
     pub order: Vec<u32>,
     pub slab_start: Vec<u32>,
+    /// Per fixed chunk of particles, the count of each slab (chunk-major), then the running
+    /// insertion cursors.
     pub counts: Vec<u32>,
+    /// Each particle's slab.
+    pub slab: Vec<u32>,
 }
 
 /// The full particle state of one body, for snapshots, PLY output and tests.

@@ -29,34 +29,56 @@ use rayon::prelude::*;
 /// horizon, 2 threads); on `sand_box` the width makes no measurable difference.
 pub const SLAB: usize = 2;
 
-/// Buckets particles by slab (a stable counting sort, so the order is deterministic).
+/// Particles per chunk of [`bin_by_slab`]'s parallel pass. Fixed, so the chunks (and so the
+/// order) do not depend on the thread count.
+const BIN_CHUNK: usize = 4096;
+
+/// Buckets particles by slab: a stable counting sort, so the order is deterministic (particle
+/// index order within each slab). The slab of every particle and the per-chunk counts are
+/// computed in parallel over fixed chunks; only the placement, an integer pass, is sequential.
 pub fn bin_by_slab(grid: &Grid, x: &[DVec3], out: &mut ScatterOrder) {
     let n_slabs = grid.n[0].div_ceil(SLAB);
-    out.counts.clear();
-    out.counts.resize(n_slabs, 0);
-    out.order.resize(x.len(), 0);
-    out.slab_start.clear();
-    out.slab_start.resize(n_slabs + 1, 0);
+    let n_chunks = x.len().div_ceil(BIN_CHUNK);
     // The slab of a particle is that of its stencil's base node, computed exactly as `stencil`
     // does ((x − origin)/dx − ½, floored): multiplying by 1/dx instead can round a particle
     // sitting on a half-cell boundary to the other side, and the scatter would then index the
     // plane before its slab's chunk.
-    let slab_of = |p: &DVec3| -> usize { stencil((*p - grid.origin) / grid.dx).base[0] / SLAB };
-    for p in x {
-        out.counts[slab_of(p)] += 1;
-    }
+    let slab_of =
+        |p: &DVec3| -> u32 { (stencil((*p - grid.origin) / grid.dx).base[0] / SLAB) as u32 };
+    out.slab.resize(x.len(), 0);
+    out.counts.clear();
+    out.counts.resize(n_chunks * n_slabs, 0);
+    out.slab
+        .par_chunks_mut(BIN_CHUNK)
+        .zip(x.par_chunks(BIN_CHUNK))
+        .zip(out.counts.par_chunks_mut(n_slabs))
+        .for_each(|((slabs, xs), counts)| {
+            for (s, p) in slabs.iter_mut().zip(xs) {
+                *s = slab_of(p);
+                counts[*s as usize] += 1;
+            }
+        });
+    // Cursors: slab by slab, chunk by chunk, so each slab holds its particles in index order.
+    out.slab_start.clear();
+    out.slab_start.resize(n_slabs + 1, 0);
     let mut acc = 0u32;
     for s in 0..n_slabs {
         out.slab_start[s] = acc;
-        acc += out.counts[s];
+        for c in 0..n_chunks {
+            let k = c * n_slabs + s;
+            let count = out.counts[k];
+            out.counts[k] = acc;
+            acc += count;
+        }
     }
     out.slab_start[n_slabs] = acc;
-    // Reuse `counts` as the running insertion cursor of each slab.
-    out.counts.copy_from_slice(&out.slab_start[..n_slabs]);
-    for (i, p) in x.iter().enumerate() {
-        let s = slab_of(p);
-        out.order[out.counts[s] as usize] = i as u32;
-        out.counts[s] += 1;
+    out.order.resize(x.len(), 0);
+    for (c, slabs) in out.slab.chunks(BIN_CHUNK).enumerate() {
+        let cursor = &mut out.counts[c * n_slabs..(c + 1) * n_slabs];
+        for (k, &s) in slabs.iter().enumerate() {
+            out.order[cursor[s as usize] as usize] = (c * BIN_CHUNK + k) as u32;
+            cursor[s as usize] += 1;
+        }
     }
 }
 
@@ -196,5 +218,36 @@ mod tests {
         }
         // The test exercises the case it is about.
         assert!(disagreements > 0);
+    }
+
+    /// Over several chunks of the parallel pass, the order is the stable sort of the particle
+    /// indices by slab, and the slab starts bound each slab's particles.
+    #[test]
+    fn binning_is_the_stable_sort_by_slab() {
+        let dx = 0.01;
+        let grid = Grid::new(DVec3::ZERO, dx, [40, 6, 6]);
+        let mut seed = 7u64;
+        let x: Vec<DVec3> = (0..3 * BIN_CHUNK + 123)
+            .map(|_| {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let u = (seed >> 11) as f64 / (1u64 << 53) as f64;
+                DVec3::new((2.0 + 35.0 * u) * dx, 0.03, 0.03)
+            })
+            .collect();
+        let slab = |p: &DVec3| stencil(*p / dx).base[0] / SLAB;
+        let mut expected: Vec<u32> = (0..x.len() as u32).collect();
+        expected.sort_by_key(|&i| slab(&x[i as usize]));
+        let mut order = ScatterOrder::default();
+        bin_by_slab(&grid, &x, &mut order);
+        assert_eq!(order.order, expected);
+        for s in 0..order.slab_start.len() - 1 {
+            let (a, b) = (
+                order.slab_start[s] as usize,
+                order.slab_start[s + 1] as usize,
+            );
+            assert!(order.order[a..b].iter().all(|&i| slab(&x[i as usize]) == s));
+        }
     }
 }
