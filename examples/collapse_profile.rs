@@ -5,7 +5,8 @@
 //!
 //! Prints the deposit height h(x)/L₀ in bins 0.05·L₀ wide (from the particles' volume, which is
 //! exact whatever the resolution), then the front as the last bin with h ≥ t for several
-//! thresholds t (in L₀), the validation's one-cell front, and percentiles of x.
+//! thresholds t (in L₀), the validation's one-cell front, percentiles of x, and the
+//! validation's front every 0.5 T_c.
 
 use powderlab::validate::{run_collapse, Collapse, COLLAPSE_SLAB_CELLS};
 
@@ -40,6 +41,15 @@ fn main() -> anyhow::Result<()> {
         let b = h.iter().rposition(|&h| h >= t).map_or(0, |b| b + 1);
         println!("front where h >= {t} L0: run-out {:.3}", b as f64 * w - 1.0);
     }
+    let tc = (a * c.length / 9.81).sqrt();
+    let line: Vec<String> = (1..=12)
+        .map(|k| {
+            let t = 0.5 * k as f64 * tc;
+            let f = r.front_trace.iter().rev().find(|f| f.0 <= t + 1e-12);
+            f.map_or("-".into(), |f| format!("{:.3}", f.1 as f64 * dx_l0 - 1.0))
+        })
+        .collect();
+    println!("run-out (front) at 0.5, 1, ..., 6 T_c: {}", line.join(" "));
     let mut s = xs.clone();
     s.sort_by(f64::total_cmp);
     for q in [0.95, 0.99, 0.999] {

@@ -276,6 +276,9 @@ pub struct CollapseResult {
     /// Final positions normalised by L₀ (for the scale-invariance check).
     #[serde(skip)]
     pub deposit: Vec<DVec3>,
+    /// `(t, front)` after every step: the time (s) and [`deposit_front_cells`] in cells.
+    #[serde(skip)]
+    pub front_trace: Vec<(f64, usize)>,
 }
 
 /// The published run-out law (Lube et al. 2005), regime by aspect ratio.
@@ -404,6 +407,7 @@ pub fn run_collapse(
         substeps_per_step: sim.params().substeps,
         wall_s: start.elapsed().as_secs_f64(),
         deposit: normalised_deposit(&st[0].x, dx, c.length),
+        front_trace: fronts,
     })
 }
 
