@@ -60,7 +60,8 @@ fn main() -> anyhow::Result<()> {
             r.runout_ratio,
             lube_runout(a),
             r.runout_ratio / lube_runout(a),
-            fmt(r.front_arrest_tc),
+            // `None` only for an empty front trace, not for a run cut off at 6 T_c.
+            r.front_arrest_tc.map_or("none".to_string(), |t| format!("{t:.2}")),
             fmt(r.arrest_tc),
             r.particles,
             r.substeps_per_step,
