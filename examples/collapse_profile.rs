@@ -1,7 +1,8 @@
 //! The deposit of one planar column collapse as a height profile, and its front by several
 //! measures, so that two resolutions can be compared above the grid scale.
 //!
-//! `cargo run --release --example collapse_profile -- A CELLS [FLOOR_MU=0.577] [PHI=22] [CFL=0.5]`
+//! `cargo run --release --example collapse_profile -- A CELLS [FLOOR_MU=0.577] [PHI=22] [CFL=0.5]
+//! [PPC=8]`
 //!
 //! Prints the deposit height h(x)/L₀ in bins 0.05·L₀ wide (from the particles' volume, which is
 //! exact whatever the resolution), then the front as the last bin with h ≥ t for several
@@ -19,6 +20,7 @@ fn main() -> anyhow::Result<()> {
     c.floor_friction = get(3, 0.577);
     c.friction_deg = get(4, 22.0);
     c.cfl = get(5, 0.5);
+    c.particles_per_cell = get(6, 8.0) as usize;
     let r = run_collapse(&c, None, |_| {})?;
     let dx_l0 = 1.0 / cells as f64;
     // Particle volume over L₀³, and the slab's depth over L₀.
@@ -32,8 +34,8 @@ fn main() -> anyhow::Result<()> {
         h[((x / w).floor().max(0.0) as usize).min(nb - 1)] += vp / (w * depth);
     }
     println!(
-        "a {a} cells {cells} floor {} phi {} cfl {}: run-out (validation front) {:.3}, {} particles, {:.1} s",
-        c.floor_friction, c.friction_deg, c.cfl, r.runout_ratio, r.particles, r.wall_s
+        "a {a} cells {cells} ppc {} floor {} phi {} cfl {}: run-out (validation front) {:.3}, {} particles, {:.1} s",
+        c.particles_per_cell, c.floor_friction, c.friction_deg, c.cfl, r.runout_ratio, r.particles, r.wall_s
     );
     let line: Vec<String> = h.iter().map(|h| format!("{h:.3}")).collect();
     println!("h/L0 per 0.05 L0 bin: {}", line.join(" "));
