@@ -383,6 +383,7 @@ mod tests {
                 substeps_per_step: 1,
                 wall_s: 0.0,
                 deposit: Vec::new(),
+                front_trace: Vec::new(),
             },
         }
     }
