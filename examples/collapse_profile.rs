@@ -1,8 +1,8 @@
 //! The deposit of one planar column collapse as a height profile, and its front by several
 //! measures, so that two resolutions can be compared above the grid scale.
 //!
-//! `cargo run --release --example collapse_profile -- A CELLS [FLOOR_MU=0.577] [PHI=22] [CFL=0.5]
-//! [PPC=8]`
+//! `cargo run --release --example collapse_profile -- [A=1] [CELLS=20] [FLOOR_MU=0.577] [PHI=22]
+//! [CFL=0.5] [PPC=8]`
 //!
 //! Prints the deposit height h(x)/L₀ in bins 0.05·L₀ wide (from the particles' volume, which is
 //! exact whatever the resolution), then the front as the last bin with h ≥ t for several
@@ -11,16 +11,27 @@
 
 use powderlab::validate::{run_collapse, Collapse, COLLAPSE_SLAB_CELLS};
 
+/// Argument `k` (named `name` in errors), or `default` when it is absent.
+fn arg<T: std::str::FromStr>(k: usize, name: &str, default: T) -> anyhow::Result<T> {
+    match std::env::args().nth(k) {
+        None => Ok(default),
+        Some(s) => s.parse().map_err(|_| {
+            anyhow::anyhow!(
+                "{name} = {s:?} does not parse (CELLS and PPC are whole numbers); usage: collapse_profile [A=1] [CELLS=20] [FLOOR_MU=0.577] \
+                 [PHI=22] [CFL=0.5] [PPC=8]"
+            )
+        }),
+    }
+}
+
 fn main() -> anyhow::Result<()> {
-    let args: Vec<String> = std::env::args().collect();
-    let get = |k: usize, d: f64| args.get(k).map_or(d, |s| s.parse().expect("a number"));
-    let a = get(1, 1.0);
-    let cells = get(2, 20.0) as usize;
+    let a: f64 = arg(1, "A", 1.0)?;
+    let cells: usize = arg(2, "CELLS", 20)?;
     let mut c = Collapse::new(a, cells);
-    c.floor_friction = get(3, 0.577);
-    c.friction_deg = get(4, 22.0);
-    c.cfl = get(5, 0.5);
-    c.particles_per_cell = get(6, 8.0) as usize;
+    c.floor_friction = arg(3, "FLOOR_MU", 0.577)?;
+    c.friction_deg = arg(4, "PHI", 22.0)?;
+    c.cfl = arg(5, "CFL", 0.5)?;
+    c.particles_per_cell = arg(6, "PPC", 8)?;
     let r = run_collapse(&c, None, |_| {})?;
     let dx_l0 = 1.0 / cells as f64;
     // Particle volume over L₀³, and the slab's depth over L₀.
