@@ -1,6 +1,6 @@
 //! Adjoint of stage 9, G2P. Forward: `v_p = Σ_i w_ip·v_i`, `C_p = k·Σ_i w_ip·v_i·d_ipᵀ` with
 //! `k = 4/dx²` and `d_ip = x_i − x_p`. The adjoint of this gather is a scatter-add into the grid,
-//! done with the same race-free slab colouring as P2G (fixed order, any thread count):
+//! done with the same race-free slab schedule as P2G (fixed order, any thread count):
 //!
 //! ```text
 //! v̄_i += Σ_p w_ip·(v̄_p + k·C̄_p·d_ip)
@@ -14,38 +14,17 @@ use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::math::kernel::stencil;
 use crate::systems::p2g::SLAB;
+use crate::systems::slab_schedule::{slab_nodes, SharedSlice, SlabSchedule};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
-
-/// Splits `xs` at `starts` (ascending offsets into it, the last one its length) into one
-/// slice per slab, then deals them into the even and the odd slabs, each list padded with empty
-/// slices to `len` entries (the number of grid chunks of its phase).
-fn slab_slices<'a, T>(
-    mut xs: &'a mut [T],
-    starts: &[u32],
-    len: [usize; 2],
-) -> [Vec<&'a mut [T]>; 2] {
-    let mut phases: [Vec<&'a mut [T]>; 2] =
-        [Vec::with_capacity(len[0]), Vec::with_capacity(len[1])];
-    for (s, w) in starts.windows(2).enumerate() {
-        let (head, tail) = std::mem::take(&mut xs).split_at_mut((w[1] - w[0]) as usize);
-        phases[s % 2].push(head);
-        xs = tail;
-    }
-    for (p, l) in phases.iter_mut().zip(len) {
-        // Every slab has its chunk: a slab past the grid's chunks would be dropped by the zip.
-        assert!(p.len() <= l, "more scatter slabs than grid chunks");
-        p.resize_with(l, || &mut []);
-    }
-    phases
-}
 
 #[allow(clippy::type_complexity)]
 pub fn g2p_adjoint(
     grid: Res<Grid>,
     mut adj: ResMut<GridAdj>,
     mut scratch: Local<Vec<DVec3>>,
+    mut schedule: Local<SlabSchedule>,
     seen: Option<Res<NonFiniteSeen>>,
     mut bodies: Query<(
         &Body,
@@ -61,12 +40,7 @@ pub fn g2p_adjoint(
     let k = 4.0 * inv_dx * inv_dx;
     let n = grid.n;
     let pl = grid.plane_len();
-    let chunk = 2 * SLAB * pl;
-    let off = (SLAB * pl).min(adj.velocity.len());
-    let n_chunks = [
-        adj.velocity.len().div_ceil(chunk),
-        (adj.velocity.len() - off).div_ceil(chunk),
-    ];
+    let len = adj.velocity.len();
     let mut bodies: Vec<_> = bodies.iter_mut().collect();
     bodies.sort_by_key(|b| b.0.index);
     for (_, start, order, mut gx, mut gv, mut gc) in bodies {
@@ -77,12 +51,8 @@ pub fn g2p_adjoint(
         let gxs = &mut *scratch;
         gxs.clear();
         gxs.resize(order.order.len(), DVec3::ZERO);
-        let [even, odd] = slab_slices(gxs, &order.slab_start, n_chunks);
         let (gvr, gcr) = (&gv.0, &gc.0);
         let slab = |slab: usize, plane0: usize, out: &mut [DVec3], gx_out: &mut [DVec3]| {
-            if slab + 1 >= order.slab_start.len() {
-                return;
-            }
             let (s, e) = (
                 order.slab_start[slab] as usize,
                 order.slab_start[slab + 1] as usize,
@@ -107,16 +77,15 @@ pub fn g2p_adjoint(
                 *gx = sums.grad_s - g_c.transpose() * sums.w_g * k;
             }
         };
-        adj.velocity
-            .par_chunks_mut(chunk)
-            .zip(even)
-            .enumerate()
-            .for_each(|(c, (out, gxo))| slab(2 * c, 2 * SLAB * c, out, gxo));
-        adj.velocity[off..]
-            .par_chunks_mut(chunk)
-            .zip(odd)
-            .enumerate()
-            .for_each(|(c, (out, gxo))| slab(2 * c + 1, 2 * SLAB * c + SLAB, out, gxo));
+        let (nodes, gxs) = (SharedSlice::new(&mut adj.velocity), SharedSlice::new(gxs));
+        schedule.run(order.slab_start.len() - 1, |s| {
+            let r = slab_nodes(s, SLAB, pl, len);
+            let own = order.slab_start[s] as usize..order.slab_start[s + 1] as usize;
+            // SAFETY: the node range meets only those of slabs `s ± 1`, which the schedule
+            // never runs at the same time; the slabs' particle ranges are disjoint.
+            let (out, gx_out) = unsafe { (nodes.slice(r), gxs.slice(own)) };
+            slab(s, SLAB * s, out, gx_out);
+        });
         let mut finite = true;
         for (&p, g) in order.order.iter().zip(scratch.iter()) {
             let gx = &mut gx.0[p as usize];

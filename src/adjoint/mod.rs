@@ -3,7 +3,7 @@
 //! schedule, whose sets are the forward [`Stage`] sets chained in exactly the reverse order.
 //!
 //! The adjoint of a gather is a scatter-add and the adjoint of a scatter is a gather: G2P's
-//! adjoint scatters into the grid with the same race-free slab colouring as P2G, and P2G's
+//! adjoint scatters into the grid with the same race-free slab schedule as P2G, and P2G's
 //! adjoint gathers per particle, so gradients are bitwise identical for any thread count.
 //!
 //! Every adjoint system reads the forward values of its substep: the backward driver

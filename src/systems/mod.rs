@@ -8,6 +8,9 @@
 //! the scene does not need is not added (no tool: no tool move; no collider: no collider
 //! contact; no thin-walled collider: no particle collision; one constitutive system per
 //! material plug-in the scene uses).
+//!
+//! [`slab_schedule`] is not a stage: it runs the race-free slab scatter that P2G and the G2P
+//! adjoint share.
 
 pub mod advect;
 pub mod constitutive;
@@ -18,6 +21,7 @@ pub mod grid_collision;
 pub mod grid_reset;
 pub mod p2g;
 pub mod particle_collision;
+pub mod slab_schedule;
 pub mod svd;
 pub mod tool_move;
 

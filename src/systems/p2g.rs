@@ -8,9 +8,11 @@
 //!
 //! **Race-free, fixed-order scatter.** Particles are bucketed by the x-slab of their stencil
 //! base (slabs of [`SLAB`] = 2 x-planes; a stencil spans 3 planes, so slab `s` writes planes
-//! `[2s, 2s + 4)`). Even slabs touch disjoint node ranges, and so do odd slabs, so the scatter runs in two parallel phases (even, then
-//! odd), each slab sequentially in particle order. The grid is x-major, so a slab's nodes are one
-//! contiguous range and the phases split the arrays with safe `par_chunks_mut`. The summation
+//! `[2s, 2s + 4)`). A slab shares nodes only with its two neighbours; every node sums its even
+//! slab's particles, then its odd slab's, each slab sequentially in particle order, and
+//! [`SlabSchedule`] runs the slabs in parallel under that constraint (an odd slab once its two
+//! even neighbours are done). The grid is x-major, so a slab's nodes are one contiguous range.
+//! The summation
 //! order of every node is fixed by the scene, not by the thread count: results are bitwise
 //! identical for any number of threads.
 //!
@@ -18,6 +20,7 @@
 
 use crate::components::*;
 use crate::math::kernel::stencil;
+use crate::systems::slab_schedule::{slab_nodes, SharedSlice, SlabSchedule};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -122,6 +125,7 @@ pub fn p2g(
     params: Res<SimParams>,
     mut grid: ResMut<Grid>,
     mut health: ResMut<Health>,
+    mut schedule: Local<SlabSchedule>,
     mut bodies: Query<(&Body, &Position, &Velocity, &P2gAffine, &mut ScatterOrder)>,
 ) {
     let mut bodies: Vec<_> = bodies.iter_mut().collect();
@@ -134,9 +138,6 @@ pub fn p2g(
         let m = body.particle_mass;
         let order = &*order;
         let scatter_slab = |slab: usize, plane0: usize, mc: &mut [f64], pc: &mut [DVec3]| {
-            if slab + 1 >= order.slab_start.len() {
-                return;
-            }
             let (s, e) = (
                 order.slab_start[slab] as usize,
                 order.slab_start[slab + 1] as usize,
@@ -157,20 +158,18 @@ pub fn p2g(
                 );
             }
         };
-        let chunk = 2 * SLAB * pl;
-        // Even slabs: chunk k holds x-planes [4k, 4k+4) and is written only by slab 2k.
-        g.mass
-            .par_chunks_mut(chunk)
-            .zip(g.momentum.par_chunks_mut(chunk))
-            .enumerate()
-            .for_each(|(k, (mc, pc))| scatter_slab(2 * k, 2 * SLAB * k, mc, pc));
-        // Odd slabs: shifted by SLAB planes, chunk k holds [4k+2, 4k+6), written by slab 2k+1.
-        let off = (SLAB * pl).min(g.mass.len());
-        g.mass[off..]
-            .par_chunks_mut(chunk)
-            .zip(g.momentum[off..].par_chunks_mut(chunk))
-            .enumerate()
-            .for_each(|(k, (mc, pc))| scatter_slab(2 * k + 1, 2 * SLAB * k + SLAB, mc, pc));
+        let len = g.mass.len();
+        let (mass, mom) = (
+            SharedSlice::new(&mut g.mass),
+            SharedSlice::new(&mut g.momentum),
+        );
+        schedule.run(order.slab_start.len() - 1, |slab| {
+            let r = slab_nodes(slab, SLAB, pl, len);
+            // SAFETY: slab `slab` takes only the planes it writes, which meet those of slabs
+            // `slab ± 1` alone, and the schedule never runs neighbouring slabs at once.
+            let (mc, pc) = unsafe { (mass.slice(r.clone()), mom.slice(r)) };
+            scatter_slab(slab, SLAB * slab, mc, pc);
+        });
     }
     let m_min = params.empty_node_mass;
     g.velocity
