@@ -1,0 +1,33 @@
+//! `scenes/powder_transport_dosing.ron` is the default transport scene with the dosing loss and
+//! nothing else changed, and its loss doses the task's target value.
+
+use powderlab::adjoint::loss::Loss;
+use powderlab::scene::{LossSpec, Scene, TargetValue};
+
+fn load(name: &str) -> Scene {
+    Scene::load(format!("{}/scenes/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
+}
+
+#[test]
+fn the_dosing_scene_is_the_default_scene_with_the_dosing_loss() {
+    let base = load("powder_transport.ron");
+    let mut dosing = load("powder_transport_dosing.ron");
+    let Some(LossSpec::Dosing { grams, width: None }) = dosing.loss else {
+        panic!(
+            "expected Dosing(grams: .., width: None), got {:?}",
+            dosing.loss
+        );
+    };
+    let task = dosing.task.as_ref().expect("a task");
+    assert_eq!(task.target_value, TargetValue::Grams(grams));
+    match powderlab::gradcheck::scene_loss(&dosing) {
+        Loss::Dosing(d) => assert_eq!(d.target_mass, grams * 1e-3),
+        _ => panic!("expected the dosing loss"),
+    }
+    assert_eq!(base.loss, None);
+    // Everything but the loss (and the file it came from) is the default scene's.
+    dosing.loss = None;
+    dosing.path = base.path.clone();
+    dosing.source = base.source.clone();
+    assert_eq!(dosing, base);
+}
