@@ -14,7 +14,7 @@ use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::math::kernel::stencil;
 use crate::systems::p2g::SLAB;
-use crate::systems::slab_schedule::{slab_nodes, SharedSlice, SlabSchedule};
+use crate::systems::slab_schedule::{Cut, SlabSchedule};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -40,7 +40,6 @@ pub fn g2p_adjoint(
     let k = 4.0 * inv_dx * inv_dx;
     let n = grid.n;
     let pl = grid.plane_len();
-    let len = adj.velocity.len();
     let mut bodies: Vec<_> = bodies.iter_mut().collect();
     bodies.sort_by_key(|b| b.0.index);
     for (_, start, order, mut gx, mut gv, mut gc) in bodies {
@@ -77,15 +76,14 @@ pub fn g2p_adjoint(
                 *gx = sums.grad_s - g_c.transpose() * sums.w_g * k;
             }
         };
-        let (nodes, gxs) = (SharedSlice::new(&mut adj.velocity), SharedSlice::new(gxs));
-        schedule.run(order.slab_start.len() - 1, |s| {
-            let r = slab_nodes(s, SLAB, pl, len);
-            let own = order.slab_start[s] as usize..order.slab_start[s + 1] as usize;
-            // SAFETY: the node range meets only those of slabs `s ± 1`, which the schedule
-            // never runs at the same time; the slabs' particle ranges are disjoint.
-            let (out, gx_out) = unsafe { (nodes.slice(r), gxs.slice(own)) };
-            slab(s, SLAB * s, out, gx_out);
-        });
+        schedule.scatter(
+            &order.slab_start,
+            pl,
+            &mut adj.velocity,
+            gxs,
+            Cut::Particles,
+            |s, out, gx_out| slab(s, SLAB * s, out, gx_out),
+        );
         let mut finite = true;
         for (&p, g) in order.order.iter().zip(scratch.iter()) {
             let gx = &mut gx.0[p as usize];

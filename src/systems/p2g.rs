@@ -20,7 +20,7 @@
 
 use crate::components::*;
 use crate::math::kernel::stencil;
-use crate::systems::slab_schedule::{slab_nodes, SharedSlice, SlabSchedule};
+use crate::systems::slab_schedule::{Cut, SlabSchedule};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -158,18 +158,14 @@ pub fn p2g(
                 );
             }
         };
-        let len = g.mass.len();
-        let (mass, mom) = (
-            SharedSlice::new(&mut g.mass),
-            SharedSlice::new(&mut g.momentum),
+        schedule.scatter(
+            &order.slab_start,
+            pl,
+            &mut g.mass,
+            &mut g.momentum,
+            Cut::Nodes,
+            |slab, mc, pc| scatter_slab(slab, SLAB * slab, mc, pc),
         );
-        schedule.run(order.slab_start.len() - 1, |slab| {
-            let r = slab_nodes(slab, SLAB, pl, len);
-            // SAFETY: slab `slab` takes only the planes it writes, which meet those of slabs
-            // `slab ± 1` alone, and the schedule never runs neighbouring slabs at once.
-            let (mc, pc) = unsafe { (mass.slice(r.clone()), mom.slice(r)) };
-            scatter_slab(slab, SLAB * slab, mc, pc);
-        });
     }
     let m_min = params.empty_node_mass;
     g.velocity

@@ -19,6 +19,7 @@
 //! `2k + 2` have usually finished. A claimed task is being run, and an odd slab depends only on
 //! tasks claimed before it, so a worker that waits always waits on one that is running.
 
+use crate::systems::p2g::SLAB;
 use rayon::prelude::*;
 use std::marker::PhantomData;
 use std::ops::Range;
@@ -78,11 +79,61 @@ pub fn claim_order(n: usize, out: &mut Vec<u32>) {
     out.extend((o..odds).map(|o| (2 * o + 1) as u32));
 }
 
+/// How [`SlabSchedule::scatter`] cuts its second array for each slab.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cut {
+    /// A node array like the first: the slab's planes.
+    Nodes,
+    /// A particle array in scatter order: the slab's particles,
+    /// `slab_start[s]..slab_start[s + 1]`.
+    Particles,
+}
+
 impl SlabSchedule {
+    /// Runs `work(slab, nodes_part, other_part)` for every slab of a binned body (`slab_start`
+    /// from [`crate::systems::p2g::bin_by_slab`]), where `nodes_part` is the part of the x-major
+    /// node array `nodes` (planes of `plane_len` nodes) that the slab writes and `other_part` is
+    /// `other` cut by `cut`. Neighbouring slabs never run at once, and of two neighbours the
+    /// even one finishes first, so every node's sum has a fixed order for any thread count.
+    pub fn scatter<A: Send, B: Send>(
+        &mut self,
+        slab_start: &[u32],
+        plane_len: usize,
+        nodes: &mut [A],
+        other: &mut [B],
+        cut: Cut,
+        work: impl Fn(usize, &mut [A], &mut [B]) + Sync,
+    ) {
+        let n_slabs = slab_start.len().saturating_sub(1);
+        let other_len = match cut {
+            Cut::Nodes => nodes.len(),
+            Cut::Particles => slab_start.last().map_or(0, |&e| e as usize),
+        };
+        assert_eq!(
+            other.len(),
+            other_len,
+            "second scatter array sized for its cut"
+        );
+        let len = nodes.len();
+        let (nodes, other) = (SharedSlice::new(nodes), SharedSlice::new(other));
+        self.run(n_slabs, |s| {
+            let r = slab_nodes(s, plane_len, len);
+            let o = match cut {
+                Cut::Nodes => r.clone(),
+                Cut::Particles => slab_start[s] as usize..slab_start[s + 1] as usize,
+            };
+            // SAFETY: slab `s` takes only the planes it writes, which meet those of slabs
+            // `s ± 1` alone, and `run` never runs neighbouring slabs at once; the slabs'
+            // particle ranges are disjoint.
+            let (a, b) = unsafe { (nodes.slice(r), other.slice(o)) };
+            work(s, a, b);
+        });
+    }
+
     /// Runs `work(slab)` for every slab in `0..n_slabs` on the current rayon pool, such that
     /// slabs `s` and `s + 1` never run at the same time and the even one of the two finishes
     /// before the odd one starts.
-    pub fn run(&mut self, n_slabs: usize, work: impl Fn(usize) + Sync) {
+    fn run(&mut self, n_slabs: usize, work: impl Fn(usize) + Sync) {
         if self.order.len() != n_slabs {
             claim_order(n_slabs, &mut self.order);
             self.done.resize_with(n_slabs, AtomicBool::default);
@@ -116,15 +167,15 @@ impl SlabSchedule {
 
 /// The node range (flat, x-major) that slab `slab` writes: x-planes
 /// `[SLAB·slab, SLAB·slab + SLAB + 2)` of `plane_len` nodes each, cut at `len`.
-pub fn slab_nodes(slab: usize, slab_width: usize, plane_len: usize, len: usize) -> Range<usize> {
-    let start = (slab_width * slab * plane_len).min(len);
-    let end = ((slab_width * slab + slab_width + 2) * plane_len).min(len);
+fn slab_nodes(slab: usize, plane_len: usize, len: usize) -> Range<usize> {
+    let start = (SLAB * slab * plane_len).min(len);
+    let end = ((SLAB * slab + SLAB + 2) * plane_len).min(len);
     start..end
 }
 
 /// A mutable slice that the tasks of one [`SlabSchedule::run`] share, each taking the part its
 /// slab writes.
-pub struct SharedSlice<'a, T> {
+struct SharedSlice<'a, T> {
     ptr: *mut T,
     len: usize,
     _borrow: PhantomData<&'a mut [T]>,
@@ -137,7 +188,7 @@ unsafe impl<T: Send> Sync for SharedSlice<'_, T> {}
 unsafe impl<T: Send> Send for SharedSlice<'_, T> {}
 
 impl<'a, T> SharedSlice<'a, T> {
-    pub fn new(s: &'a mut [T]) -> Self {
+    fn new(s: &'a mut [T]) -> Self {
         SharedSlice {
             ptr: s.as_mut_ptr(),
             len: s.len(),
@@ -150,7 +201,7 @@ impl<'a, T> SharedSlice<'a, T> {
     /// # Safety
     /// While the returned slice lives, no other slice taken from `self` may overlap `r`.
     #[allow(clippy::mut_from_ref)]
-    pub unsafe fn slice(&self, r: Range<usize>) -> &mut [T] {
+    unsafe fn slice(&self, r: Range<usize>) -> &mut [T] {
         assert!(
             r.start <= r.end && r.end <= self.len,
             "slab range out of bounds"
@@ -231,9 +282,10 @@ mod tests {
 
     #[test]
     fn slab_nodes_cover_their_planes_and_stop_at_the_end() {
-        assert_eq!(slab_nodes(0, 2, 10, 1000), 0..40);
-        assert_eq!(slab_nodes(3, 2, 10, 1000), 60..100);
-        assert_eq!(slab_nodes(49, 2, 10, 1000), 980..1000);
-        assert_eq!(slab_nodes(60, 2, 10, 1000), 1000..1000);
+        assert_eq!(SLAB, 2, "the ranges below are for slabs of 2 planes");
+        assert_eq!(slab_nodes(0, 10, 1000), 0..40);
+        assert_eq!(slab_nodes(3, 10, 1000), 60..100);
+        assert_eq!(slab_nodes(49, 10, 1000), 980..1000);
+        assert_eq!(slab_nodes(60, 10, 1000), 1000..1000);
     }
 }
