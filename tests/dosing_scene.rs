@@ -1,12 +1,11 @@
 //! `scenes/powder_transport_dosing.ron` is the default transport scene with the dosing loss and
 //! nothing else changed, and its loss doses the task's target value.
 
-use powderlab::adjoint::loss::Loss;
-use powderlab::scene::{LossSpec, Scene, TargetValue};
+mod common;
 
-fn load(name: &str) -> Scene {
-    Scene::load(format!("{}/scenes/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()
-}
+use common::load;
+use powderlab::adjoint::loss::Loss;
+use powderlab::scene::{LossSpec, TargetValue};
 
 #[test]
 fn the_dosing_scene_is_the_default_scene_with_the_dosing_loss() {
