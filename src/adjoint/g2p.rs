@@ -51,7 +51,9 @@ pub fn g2p_adjoint(
         gxs.clear();
         gxs.resize(order.order.len(), DVec3::ZERO);
         let (gvr, gcr) = (&gv.0, &gc.0);
-        let slab = |slab: usize, plane0: usize, out: &mut [DVec3], gx_out: &mut [DVec3]| {
+        // `out` is the slab's planes, from its first one, `SLAB·slab`; `gx_out` its particles.
+        let slab = |slab: usize, out: &mut [DVec3], gx_out: &mut [DVec3]| {
+            let plane0 = SLAB * slab;
             let (s, e) = (
                 order.slab_start[slab] as usize,
                 order.slab_start[slab + 1] as usize,
@@ -82,7 +84,7 @@ pub fn g2p_adjoint(
             &mut adj.velocity,
             gxs,
             Cut::Particles,
-            |s, out, gx_out| slab(s, SLAB * s, out, gx_out),
+            slab,
         );
         let mut finite = true;
         for (&p, g) in order.order.iter().zip(scratch.iter()) {

@@ -12,9 +12,8 @@
 //! slab's particles, then its odd slab's, each slab sequentially in particle order, and
 //! [`SlabSchedule`] runs the slabs in parallel under that constraint (an odd slab once its two
 //! even neighbours are done). The grid is x-major, so a slab's nodes are one contiguous range.
-//! The summation
-//! order of every node is fixed by the scene, not by the thread count: results are bitwise
-//! identical for any number of threads.
+//! The summation order of every node is fixed by the scene, not by the thread count: results
+//! are bitwise identical for any number of threads.
 //!
 //! Reads `Body`, `Position`, `Velocity`, `P2gAffine`; writes `Grid` and `ScatterOrder`.
 
@@ -26,10 +25,11 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 /// Width of a scatter slab in x-planes of base nodes. A slab writes `SLAB + 2` planes, and
-/// those must not reach slab `s + 2`'s, which start `2·SLAB` planes on, so it must be ≥ 2. The narrowest width gives the most
-/// slabs: the default scene's powder, 12 cells across in a cup, makes 6–7 slabs instead of 3–4
-/// at width 4, and its scatters now run on both threads (adjoint G2P 1.60 → 1.08 s over its
-/// horizon, 2 threads); on `sand_box` the width makes no measurable difference.
+/// those must not reach slab `s + 2`'s, which start `2·SLAB` planes on, so it must be ≥ 2. The
+/// narrowest width gives the most slabs: the default scene's powder, 12 cells across in a cup,
+/// makes 6–7 slabs instead of 3–4 at width 4, and its scatters now run on both threads
+/// (adjoint G2P 1.60 → 1.08 s over its horizon, 2 threads); on `sand_box` the width makes no
+/// measurable difference.
 pub const SLAB: usize = 2;
 
 /// Particles per chunk of [`bin_by_slab`]'s parallel pass. Fixed, so the chunks (and so the
@@ -137,7 +137,9 @@ pub fn p2g(
         bin_by_slab(g, &x.0, &mut order);
         let m = body.particle_mass;
         let order = &*order;
-        let scatter_slab = |slab: usize, plane0: usize, mc: &mut [f64], pc: &mut [DVec3]| {
+        // `mc` and `pc` are the slab's planes, from its first one, `SLAB·slab`.
+        let scatter_slab = |slab: usize, mc: &mut [f64], pc: &mut [DVec3]| {
+            let plane0 = SLAB * slab;
             let (s, e) = (
                 order.slab_start[slab] as usize,
                 order.slab_start[slab + 1] as usize,
@@ -164,7 +166,7 @@ pub fn p2g(
             &mut g.mass,
             &mut g.momentum,
             Cut::Nodes,
-            |slab, mc, pc| scatter_slab(slab, SLAB * slab, mc, pc),
+            scatter_slab,
         );
     }
     let m_min = params.empty_node_mass;
