@@ -45,6 +45,7 @@ pub mod materials;
 pub mod math;
 pub mod mesh;
 pub mod metrics;
+pub mod nonfinite;
 pub mod optim;
 pub mod ply;
 #[cfg(feature = "rerun")]

@@ -457,9 +457,23 @@ impl Scene {
                         "no control: containers are static (use kind: Tool)",
                     ))
                 }
-                (_, Some(ControlSpec::Skill(sk))) => sk
-                    .validate()
-                    .map_err(|e| e.within(&format!("{at}.control")))?,
+                (_, Some(ControlSpec::Skill(sk))) => {
+                    sk.validate()
+                        .map_err(|e| e.within(&format!("{at}.control")))?;
+                    skill_horizon(sk, c, s.dt).map_err(|e| e.within(&format!("{at}.control")))?;
+                }
+                (_, Some(ControlSpec::Constant { steps, .. }))
+                    if *steps > crate::skills::MAX_CONTROL_STEPS =>
+                {
+                    return Err(FieldError::new(
+                        format!("{at}.control.steps"),
+                        steps.to_string(),
+                        format!(
+                            "at most {} steps (the per-step controls are held in memory)",
+                            crate::skills::MAX_CONTROL_STEPS
+                        ),
+                    ));
+                }
                 (_, Some(ControlSpec::Actions(a))) => {
                     if let Some(k) = a.iter().position(|u| !u.iter().all(|x| x.is_finite())) {
                         return Err(FieldError::new(
@@ -577,6 +591,16 @@ impl Scene {
                     "the name of a Cup collider",
                 ));
             }
+            let (amount, unit) = match t.target_value {
+                TargetValue::Particles(n) => (n, "particles"),
+                TargetValue::Grams(g) => (g, "g"),
+            };
+            pos(
+                "task.target_value",
+                amount,
+                amount >= 0.0,
+                &format!(">= 0 {unit}, a finite amount of powder"),
+            )?;
         }
         if let Some(LossSpec::Dosing { grams, width }) = self.loss {
             if self.task.is_none() {
@@ -595,6 +619,14 @@ impl Scene {
             if r.every == 0 {
                 return Err(FieldError::new("record.every", "0", ">= 1 step"));
             }
+            if let Some(rad) = r.point_radius {
+                pos("record.point_radius", rad, rad > 0.0, "> 0 m")?;
+            }
+        }
+        // Behind the range checks above: any other field that is NaN or infinite (a rotation, a
+        // loss target, a recording option) would reach the simulation as a silent NaN.
+        if let Some((field, v)) = crate::nonfinite::first_nonfinite(self) {
+            return Err(FieldError::new(field, v.to_string(), "a finite number"));
         }
         Ok(())
     }
@@ -645,6 +677,52 @@ impl Scene {
             lo + DVec3::new((n.0 - 1) as f64, (n.1 - 1) as f64, (n.2 - 1) as f64) * s.dx,
         )
     }
+}
+
+/// Refuses a skill whose motion would take more than [`MAX_CONTROL_STEPS`] steps for some Θ,
+/// naming the field that sets its longest phase.
+fn skill_horizon(sk: &SkillSpec, c: &ColliderSpec, dt: f64) -> Result<(), FieldError> {
+    use crate::skills::{StepsSetBy, MAX_CONTROL_STEPS, PHASES};
+    let pose = Pose {
+        translation: DVec3::from(c.position),
+        rotation: Scene::collider_rotation(c),
+    };
+    let bottom = pose.to_world(crate::sim::lowest_local_point(&c.shape)).y;
+    let bound = sk.step_bound(dt, bottom);
+    let total: f64 = bound.iter().map(|b| b.0).sum();
+    if total <= MAX_CONTROL_STEPS as f64 {
+        return Ok(());
+    }
+    let (phase, &(n, by)) = bound
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1 .0.total_cmp(&b.1 .0))
+        .expect("six phases");
+    let (field, value, fix) = match by {
+        StepsSetBy::LinearSpeed => (
+            "linear_speed",
+            format!("{} m/s", sk.linear_speed),
+            "raise linear_speed or simulation.dt",
+        ),
+        StepsSetBy::AngularSpeed => (
+            "angular_speed_deg",
+            format!("{} deg/s", sk.angular_speed_deg),
+            "raise angular_speed_deg or simulation.dt",
+        ),
+        StepsSetBy::SettleSteps => (
+            "settle_steps",
+            sk.settle_steps.to_string(),
+            "lower settle_steps",
+        ),
+    };
+    Err(FieldError::new(
+        field,
+        value,
+        format!(
+            "a skill of at most {MAX_CONTROL_STEPS} steps: with simulation.dt = {dt} s it takes up to {total:.3e}, the {} phase {n:.3e} of them; {fix}",
+            PHASES[phase]
+        ),
+    ))
 }
 
 fn validate_shape(s: &Shape) -> Result<(), FieldError> {
@@ -800,7 +878,13 @@ fn find_key(src: &str, from: usize, key: &str) -> Option<usize> {
 
 /// Offset of the i-th top-level item of the `[...]` list starting after `from`.
 fn nth_list_item(src: &str, from: usize, n: usize) -> Option<usize> {
-    let start = from + src[from..].find('[')? + 1;
+    // The list (or tuple) opens right after the key's colon, or the path is not about it.
+    let after = from + src[from..].find(':')? + 1;
+    let open = after + src[after..].find(|c: char| !c.is_whitespace())?;
+    if !src[open..].starts_with(['[', '(']) {
+        return None;
+    }
+    let start = open + 1;
     let mut depth = 0i32;
     let mut item = 0usize;
     let mut at_item_start = true;
@@ -814,8 +898,8 @@ fn nth_list_item(src: &str, from: usize, n: usize) -> Option<usize> {
         }
         match ch {
             '(' | '[' | '{' => depth += 1,
-            ')' | '}' => depth -= 1,
-            ']' => {
+            '}' => depth -= 1,
+            ']' | ')' => {
                 if depth == 0 {
                     return None;
                 }
@@ -841,5 +925,13 @@ mod tests {
         assert_eq!(locate(src, "simulation.dx"), (2, 16));
         assert_eq!(locate(src, "bodies[1].x"), (5, 17));
         assert_eq!(locate(src, "bodies[0].name"), (4, 6));
+    }
+
+    #[test]
+    fn locate_tuple_items() {
+        let src = "Scene(\n  colliders: [\n    (name: \"a\", rotation_deg: (0.0, NaN, 0.0)),\n  ],\n  b: [1],\n)";
+        // The item inside the tuple, not a later list's.
+        assert_eq!(locate(src, "colliders[0].rotation_deg[1]"), (3, 37));
+        assert_eq!(locate(src, "colliders[0].rotation_deg[2]"), (3, 42));
     }
 }

@@ -91,6 +91,25 @@ pub fn phase_steps(distance: f64, speed: f64, dt: f64) -> usize {
 /// The six phases, in order.
 pub const PHASES: [&str; 6] = ["descend", "scoop", "lift", "transport", "pour", "settle"];
 
+/// The most steps a tool's control (a skill's motion, a constant velocity) may take. A slow
+/// speed or a tiny `dt` in a scene file would otherwise ask for an absurd horizon, whose
+/// per-step controls alone (48 bytes a step) exhaust the memory before the first step; a
+/// million steps is 10⁴ s at the scenes' `dt` of 0.01 s.
+pub const MAX_CONTROL_STEPS: usize = 1_000_000;
+
+/// Which scene field sets a phase's step count, for messages.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum StepsSetBy {
+    LinearSpeed,
+    AngularSpeed,
+    SettleSteps,
+}
+
+/// `phase_steps` in f64, without the cast: it neither saturates nor allocates.
+fn phase_steps_f64(distance: f64, speed: f64, dt: f64) -> f64 {
+    (distance.abs() / (speed * dt)).round().max(1.0)
+}
+
 impl SkillSpec {
     pub fn validate(&self) -> Result<(), FieldError> {
         for (k, t) in self.theta.iter().enumerate() {
@@ -225,6 +244,40 @@ impl SkillSpec {
 }
 
 impl SkillSpec {
+    /// The most steps each phase takes for any Θ in [−1, 1]⁵ (the counts are monotone in each
+    /// phase's displacement, which is largest at an end of its range), with the field that
+    /// sets it; in f64, so a scene asking for an absurd horizon is measured, not allocated.
+    pub fn step_bound(&self, dt: f64, bottom_y: f64) -> [(f64, StepsSetBy); 6] {
+        use StepsSetBy::*;
+        let r = &self.ranges;
+        let far = |(lo, hi): (f64, f64)| lo.abs().max(hi.abs());
+        let (v, w) = (self.linear_speed, self.angular_speed_deg.to_radians());
+        let descent = far((
+            bottom_y - self.surface_height + r.scoop_depth.0,
+            bottom_y - self.surface_height + r.scoop_depth.1,
+        ));
+        let stroke = phase_steps_f64(self.scoop_stroke, v, dt);
+        let turn = phase_steps_f64(far(r.scoop_angle_deg).to_radians(), w, dt);
+        [
+            (phase_steps_f64(descent, v, dt), LinearSpeed),
+            if stroke >= turn {
+                (stroke, LinearSpeed)
+            } else {
+                (turn, AngularSpeed)
+            },
+            (phase_steps_f64(far(r.lift_height), v, dt), LinearSpeed),
+            (
+                phase_steps_f64(far(r.transport_distance), v, dt),
+                LinearSpeed,
+            ),
+            (
+                phase_steps_f64(far(r.pour_angle_deg).to_radians(), w, dt),
+                AngularSpeed,
+            ),
+            (self.settle_steps as f64, SettleSteps),
+        ]
+    }
+
     /// Adjoint of [`SkillSpec::controls`]: `∂L/∂u` per step → `∂L/∂Θ`. The step counts are
     /// held fixed (straight-through rounding: a surrogate at the points where a count changes,
     /// exact between them), so each step's `u = D/n` passes `ū/n` to its phase displacement `D`,
