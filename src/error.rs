@@ -57,13 +57,16 @@ pub enum SceneError {
         value: String,
         expected: String,
     },
-    #[error("{file}: unstable time step: Δt_sub = {dt_sub:.3e} s exceeds the stable {dt_max:.3e} s ({reason}); with stability: Strict the scene is refused: raise simulation.substeps to at least {needed} or set stability: Auto")]
+    #[error("{file}: unstable time step: Δt_sub = {dt_sub:.3e} s exceeds the stable {dt_max:.3e} s ({reason}); {advice}")]
     Unstable {
         file: PathBuf,
         dt_sub: f64,
         dt_max: f64,
-        needed: usize,
+        /// Substeps per step the stable Δt_sub needs (a float: it can exceed any integer).
+        needed: f64,
         reason: String,
+        /// What to change in the scene.
+        advice: String,
     },
 }
 

@@ -12,6 +12,11 @@ use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use std::time::Instant;
 
+/// The most substeps per step `stability: Auto` takes to meet the CFL bound. Beyond it a scene
+/// is refused: at 1e6 substeps a step of even the smallest scene runs for minutes, and the cause
+/// is a stiffness or speed far outside what the scene means (a typo in `youngs_modulus`).
+pub const MAX_AUTO_SUBSTEPS: usize = 1_000_000;
+
 /// What the stability guard found and chose.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StabilityReport {
@@ -71,11 +76,111 @@ pub struct Simulation {
 }
 
 /// Particles of a fill, before collider clearance and domain checks.
+/// Bytes a forward simulation holds per grid node: mass, momentum and velocity in f64
+/// (`study growth`'s grid series measured 56 bytes per node of peak RSS).
+const GRID_BYTES_PER_NODE: f64 = 56.0;
+/// Bytes a forward simulation holds per particle: x, v, C, F, F_tmp, the SVD factors, the P2G
+/// affine term and the scatter order in f64, plus the material's state (`study growth`'s
+/// particle series measured about 516 bytes per particle of peak RSS at 1M particles).
+const PARTICLE_BYTES: f64 = 520.0;
+/// Bytes per lattice point while a fill is generated (a position in f64).
+const LATTICE_BYTES_PER_POINT: f64 = 24.0;
+
+/// Refuses the scene, naming the field that `what` describes (field, value, what needs the
+/// memory, how to fix it), when `need` bytes exceed the memory available; passes where the
+/// available memory is unknown.
+fn check_memory(
+    scene: &Scene,
+    available: Option<u64>,
+    need: f64,
+    what: impl FnOnce() -> (String, String, String, String),
+) -> Result<(), SceneError> {
+    let Some(avail) = available else {
+        return Ok(());
+    };
+    if need <= avail as f64 {
+        return Ok(());
+    }
+    let (field, value, needs, fix) = what();
+    Err(scene.field_error(FieldError::new(
+        field,
+        value,
+        format!(
+            "a scene that fits in memory: {needs} need about {:.1} GB, and {:.1} GB are available; {fix}",
+            need / 1e9,
+            avail as f64 / 1e9
+        ),
+    )))
+}
+
+/// Lattice points `fill_points` visits for a body (its fill's bounding lattice), in f64 so
+/// that an absurd fill is measured, not allocated.
+fn fill_lattice_count(scene: &Scene, body: &BodySpec) -> f64 {
+    let ppa = (body.particles_per_cell as f64).cbrt().round();
+    let h = scene.simulation.dx / ppa;
+    let (lo, hi) = fill_bounds(scene, body);
+    let n = ((hi - lo) / h + DVec3::splat(1e-9))
+        .floor()
+        .max(DVec3::ZERO);
+    n.x * n.y * n.z
+}
+
+/// The box the fill's lattice spans (for `InsideContainer`, in the cup's own frame).
+fn fill_bounds(scene: &Scene, body: &BodySpec) -> (DVec3, DVec3) {
+    match &body.fill {
+        Fill::Box { min, max } => (DVec3::from(*min), DVec3::from(*max)),
+        Fill::Column {
+            base,
+            length,
+            aspect,
+            depth,
+        } => {
+            let b = DVec3::from(*base);
+            (b, b + DVec3::new(*length, aspect * length, *depth))
+        }
+        Fill::Cylinder {
+            base,
+            radius,
+            height,
+        } => {
+            let b = DVec3::from(*base);
+            (
+                b - DVec3::new(*radius, 0.0, *radius),
+                b + DVec3::new(*radius, *height, *radius),
+            )
+        }
+        Fill::InsideContainer { container, height } => {
+            let (r, floor) = cup_cavity(scene, container);
+            (DVec3::new(-r, floor, -r), DVec3::new(r, floor + height, r))
+        }
+    }
+}
+
+/// The cavity radius and floor height of a cup collider, in its own frame.
+fn cup_cavity(scene: &Scene, container: &str) -> (f64, f64) {
+    let c = scene
+        .colliders
+        .iter()
+        .find(|c| c.name == container)
+        .expect("validated");
+    let Shape::Cup {
+        outer_radius,
+        wall_thickness,
+        floor_thickness,
+        ..
+    } = c.shape
+    else {
+        unreachable!("validated: fill container is a cup")
+    };
+    (outer_radius - wall_thickness, floor_thickness)
+}
+
 fn fill_points(scene: &Scene, body: &BodySpec) -> Vec<DVec3> {
     let dx = scene.simulation.dx;
     let ppa = (body.particles_per_cell as f64).cbrt().round() as usize;
     let h = dx / ppa as f64;
-    let lattice = |lo: DVec3, hi: DVec3, keep: &dyn Fn(DVec3) -> bool| -> Vec<DVec3> {
+    let lattice = |keep: &dyn Fn(DVec3) -> bool| -> Vec<DVec3> {
+        let (lo, hi) = fill_bounds(scene, body);
         let n = ((hi - lo) / h + DVec3::splat(1e-9)).floor();
         let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
         let mut out = Vec::with_capacity(nx * ny * nz);
@@ -92,58 +197,26 @@ fn fill_points(scene: &Scene, body: &BodySpec) -> Vec<DVec3> {
         out
     };
     match &body.fill {
-        Fill::Box { min, max } => lattice(DVec3::from(*min), DVec3::from(*max), &|_| true),
-        Fill::Column {
-            base,
-            length,
-            aspect,
-            depth,
-        } => {
+        Fill::Box { .. } | Fill::Column { .. } => lattice(&|_| true),
+        Fill::Cylinder { base, radius, .. } => {
             let b = DVec3::from(*base);
-            lattice(b, b + DVec3::new(*length, aspect * length, *depth), &|_| {
-                true
-            })
+            lattice(&|p| (p.x - b.x).hypot(p.z - b.z) < *radius)
         }
-        Fill::Cylinder {
-            base,
-            radius,
-            height,
-        } => {
-            let b = DVec3::from(*base);
-            lattice(
-                b - DVec3::new(*radius, 0.0, *radius),
-                b + DVec3::new(*radius, *height, *radius),
-                &|p| (p.x - b.x).hypot(p.z - b.z) < *radius,
-            )
-        }
-        Fill::InsideContainer { container, height } => {
+        Fill::InsideContainer { container, .. } => {
+            let (r, _) = cup_cavity(scene, container);
             let c = scene
                 .colliders
                 .iter()
                 .find(|c| &c.name == container)
                 .expect("validated");
-            let Shape::Cup {
-                outer_radius,
-                wall_thickness,
-                floor_thickness,
-                ..
-            } = c.shape
-            else {
-                unreachable!("validated: fill container is a cup")
-            };
-            let r = outer_radius - wall_thickness;
             let pose = Pose {
                 translation: DVec3::from(c.position),
                 rotation: Scene::collider_rotation(c),
             };
-            lattice(
-                DVec3::new(-r, floor_thickness, -r),
-                DVec3::new(r, floor_thickness + height, r),
-                &|p| p.x.hypot(p.z) < r,
-            )
-            .into_iter()
-            .map(|p| pose.to_world(p))
-            .collect()
+            lattice(&|p| p.x.hypot(p.z) < r)
+                .into_iter()
+                .map(|p| pose.to_world(p))
+                .collect()
         }
     }
 }
@@ -154,6 +227,32 @@ impl Simulation {
         let s = &scene.simulation;
         let dx = s.dx;
         let n = [s.cells.0, s.cells.1, s.cells.2];
+        // Refuse a scene that cannot fit in memory before allocating it (an allocation that
+        // fails aborts the process, and an over-committed one brings the OOM killer): the grid,
+        // and the lattice every fill is cut from, at their largest.
+        let available = crate::util::available_memory_bytes();
+        let nodes = (n[0] * n[1] * n[2]) as f64;
+        let grid_bytes = nodes * GRID_BYTES_PER_NODE;
+        let candidates: f64 = scene
+            .bodies
+            .iter()
+            .map(|b| fill_lattice_count(scene, b))
+            .sum();
+        check_memory(
+            scene,
+            available,
+            grid_bytes + candidates * LATTICE_BYTES_PER_POINT,
+            || {
+                (
+                    "simulation.cells".into(),
+                    format!("{:?}", s.cells),
+                    format!(
+                        "a grid of {nodes:.3e} nodes and fills of {candidates:.3e} lattice points"
+                    ),
+                    "raise simulation.dx, shrink simulation.cells or the fills".into(),
+                )
+            },
+        )?;
         let grid = Grid::new(DVec3::from(s.domain_min), dx, n);
         let (safe_lo, safe_hi) = (
             grid.origin + DVec3::splat(dx),
@@ -230,6 +329,7 @@ impl Simulation {
         let mut min_particle_mass = f64::INFINITY;
         let mut materials_used: Vec<MaterialSpec> = Vec::new();
         let mut rng = crate::util::SplitMix64(s.seed);
+        let mut particles_so_far = 0.0f64;
         for (i, b) in scene.bodies.iter().enumerate() {
             let mat = &scene.materials[&b.material];
             let mat = match mat {
@@ -269,6 +369,23 @@ impl Simulation {
                     ),
                 )));
             }
+            particles_so_far += x.len() as f64;
+            check_memory(
+                scene,
+                available,
+                grid_bytes + particles_so_far * PARTICLE_BYTES,
+                || {
+                    (
+                        format!("bodies[{i}].particles_per_cell"),
+                        b.particles_per_cell.to_string(),
+                        format!(
+                            "{particles_so_far:.3e} particles (this body {}) on a grid of {nodes:.3e} nodes",
+                            x.len()
+                        ),
+                        "lower particles_per_cell, shrink the fills or raise simulation.dx".into(),
+                    )
+                },
+            )?;
             let volume = h * h * h;
             let mass = mat.density() * volume;
             let (mu, lambda) = mat.lame();
@@ -315,32 +432,45 @@ impl Simulation {
         let dt_max = s.cfl * dx / (wave_speed + max_speed);
         let mut substeps = s.substeps;
         if dt_sub > dt_max * (1.0 + 1e-12) {
-            let needed = (s.dt / dt_max).ceil() as usize;
+            // In f64: for an absurd stiffness the count exceeds any integer (`as usize` would
+            // saturate and print 18446744073709551615 as the advice).
+            let needed = (s.dt / dt_max).ceil();
+            let too_many = needed > MAX_AUTO_SUBSTEPS as f64;
+            // Fixed-point below 1e6 m/s, as the stability table prints them; an absurd
+            // stiffness in scientific notation rather than 150 digits.
+            let speed = |v: f64| {
+                if v < 1e6 {
+                    format!("{v:.3}")
+                } else {
+                    format!("{v:.3e}")
+                }
+            };
+            let reason = format!(
+                "elastic wave speed {} m/s + largest speed {} m/s, dx {dx} m, CFL {}",
+                speed(wave_speed),
+                speed(max_speed),
+                s.cfl
+            );
+            let refuse = |advice: String| SceneError::Unstable {
+                file: scene.path.clone(),
+                dt_sub,
+                dt_max,
+                needed,
+                reason: reason.clone(),
+                advice,
+            };
+            if too_many {
+                return Err(refuse(format!(
+                    "it would need {needed:.3e} substeps per step, more than the {MAX_AUTO_SUBSTEPS} even stability: Auto takes: lower the materials' youngs_modulus (the wave speed grows as its square root) or the tool speeds, or raise dx"
+                )));
+            }
             match s.stability {
                 Stability::Strict => {
-                    return Err(SceneError::Unstable {
-                        file: scene.path.clone(),
-                        dt_sub,
-                        dt_max,
-                        needed,
-                        reason: format!(
-                            "elastic wave speed {wave_speed:.3} m/s + largest speed {max_speed:.3} m/s, dx {dx} m, CFL {}",
-                            s.cfl
-                        ),
-                    })
+                    return Err(refuse(format!(
+                        "with stability: Strict the scene is refused: raise simulation.substeps to at least {needed} or set stability: Auto"
+                    )))
                 }
-                Stability::Auto => {
-                    if needed > 1_000_000 {
-                        return Err(SceneError::Unstable {
-                            file: scene.path.clone(),
-                            dt_sub,
-                            dt_max,
-                            needed,
-                            reason: "even stability: Auto refuses more than 1e6 substeps per step".into(),
-                        });
-                    }
-                    substeps = needed;
-                }
+                Stability::Auto => substeps = needed as usize,
             }
         }
         let stability = StabilityReport {

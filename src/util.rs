@@ -39,6 +39,15 @@ pub fn peak_rss_bytes() -> u64 {
         .map_or(0, |kb| kb * 1024)
 }
 
+/// Memory the kernel can give this process without swapping (`MemAvailable` of
+/// `/proc/meminfo`), or `None` where that file does not exist.
+pub fn available_memory_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let l = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u64 = l.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
 /// A small deterministic generator (SplitMix64, Steele et al. 2014): the lattice jitter and
 /// every random draw of `optimize` come from it, so a seed fixes the numbers on any machine and
 /// for any thread count.

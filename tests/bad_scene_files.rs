@@ -218,3 +218,118 @@ fn dosing_loss_without_a_task() {
         "{msg}"
     );
 }
+
+/// A field without its own range check (a rotation) must not carry a NaN into the simulation:
+/// it used to clear every particle out of the fill (`NaN > margin` is false) and run empty.
+#[test]
+fn non_finite_rotation() {
+    let msg = error_of(&GOOD.replace(
+        "position: (0.11, 0.11, 0.11)),",
+        "position: (0.11, 0.11, 0.11), rotation_deg: (0.0, NaN, 0.0)),",
+    ));
+    assert!(
+        msg.contains("colliders[0].rotation_deg[1]")
+            && msg.contains("NaN")
+            && msg.contains("finite")
+            && msg.contains("scenes/bad.ron:8:"),
+        "{msg}"
+    );
+}
+
+/// A loss target of NaN used to give a NaN loss and zero gradients without a word.
+#[test]
+fn non_finite_loss_target() {
+    let msg = error_of(&GOOD.replace(
+        "steps: Some(1)),",
+        "steps: Some(1)),\n    loss: Some(SumDistance((0.1, inf, 0.1))),",
+    ));
+    assert!(
+        msg.contains("loss") && msg.contains("inf") && msg.contains("finite"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn negative_target_amount() {
+    let msg = error_of(&GOOD.replace(
+        "steps: Some(1)),",
+        "steps: Some(1)),\n    task: Some((target: \"cup\", target_value: Grams(-5.0))),",
+    ));
+    assert!(
+        msg.contains("task.target_value") && msg.contains("-5") && msg.contains(">= 0 g"),
+        "{msg}"
+    );
+}
+
+/// A slow tool asked for a horizon of 1e10 steps, whose per-step controls alone aborted the
+/// process on a failed 190 GB allocation.
+#[test]
+fn skill_too_slow_for_its_horizon() {
+    let src = GOOD.replace(
+        "position: (0.11, 0.11, 0.11)),",
+        &SKILL_TOOL.replace("linear_speed: 0.2", "linear_speed: 1e-9"),
+    );
+    let msg = error_of(&src);
+    assert!(
+        msg.contains("colliders[1].control.linear_speed")
+            && msg.contains("1000000 steps")
+            && msg.contains("raise linear_speed"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn constant_control_too_long() {
+    let msg = error_of(&GOOD.replace(
+        "position: (0.11, 0.11, 0.11)),",
+        "position: (0.11, 0.11, 0.11)),\n        (name: \"rod\", kind: Tool, shape: Sphere(radius: 0.01), position: (0.11, 0.2, 0.11),\n         control: Constant(linear: (0.0, 0.0, 0.0), angular: (0.0, 0.0, 0.0), steps: 10000000000)),",
+    ));
+    assert!(
+        msg.contains("colliders[1].control.steps") && msg.contains("at most 1000000"),
+        "{msg}"
+    );
+}
+
+/// An absurd stiffness: the advice used to be "raise simulation.substeps to at least
+/// 18446744073709551615" (a saturated cast).
+#[test]
+fn absurd_stiffness_names_the_cause() {
+    let msg = error_of(&GOOD.replace("youngs_modulus: 2e4", "youngs_modulus: 1e300"));
+    assert!(
+        msg.contains("unstable time step")
+            && msg.contains("youngs_modulus")
+            && msg.contains("e148 substeps per step")
+            && !msg.contains("18446744073709551615"),
+        "{msg}"
+    );
+}
+
+/// A grid far beyond any machine's memory is refused before it is allocated (the allocation
+/// used to abort the process). Where the available memory is unknown the check is skipped, and
+/// so is this test.
+#[test]
+fn grid_beyond_the_memory() {
+    if powderlab::util::available_memory_bytes().is_none() {
+        return;
+    }
+    let msg = error_of(&GOOD.replace("cells: (24, 24, 24)", "cells: (4096, 4096, 4096)"));
+    assert!(
+        msg.contains("simulation.cells")
+            && msg.contains("fits in memory")
+            && msg.contains("GB are available")
+            && msg.contains("scenes/bad.ron:2:"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn non_positive_point_radius() {
+    let msg = error_of(&GOOD.replace(
+        "steps: Some(1)),",
+        "steps: Some(1)),\n    record: Some((every: 1, point_radius: Some(0.0))),",
+    ));
+    assert!(
+        msg.contains("record.point_radius") && msg.contains("> 0 m"),
+        "{msg}"
+    );
+}
