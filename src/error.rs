@@ -36,10 +36,12 @@ impl FieldError {
 /// Problems with a scene file.
 #[derive(Debug, Error)]
 pub enum SceneError {
-    #[error("{file}: cannot read the scene file: {source}; check the path")]
+    /// The cause is part of the message and deliberately not the error's `source()`: the CLI
+    /// prints the whole chain, which stated the OS error twice.
+    #[error("{file}: cannot read the scene file: {cause}; check the path")]
     Io {
         file: PathBuf,
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     #[error("{file}:{line}:{col}: {message}; fix the scene file (all fields are documented in scenes/README.md)")]
     Parse {

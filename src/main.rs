@@ -6,7 +6,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use powderlab::metrics::frame_metrics;
 use powderlab::sim::{SimOptions, Simulation};
 use powderlab::study;
-use powderlab::util::{peak_rss_bytes, write_atomic};
+use powderlab::util::{check_output_file, peak_rss_bytes, write_atomic};
 use powderlab::validate;
 use serde_json::json;
 use std::path::PathBuf;
@@ -35,7 +35,7 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
         /// Worker threads (default: the scene's setting; 0 = all cores).
-        #[arg(long)]
+        #[arg(long, value_parser = threads_arg)]
         threads: Option<usize>,
         /// Write the final particle positions and velocities as PLY.
         #[arg(long)]
@@ -47,7 +47,7 @@ enum Command {
         /// Global steps to time (default: the scene's horizon).
         #[arg(long)]
         steps: Option<usize>,
-        #[arg(long)]
+        #[arg(long, value_parser = threads_arg)]
         threads: Option<usize>,
         /// Time each stage separately (adds a little overhead).
         #[arg(long)]
@@ -75,7 +75,7 @@ enum Command {
         /// Global steps (default: the scene's horizon).
         #[arg(long)]
         steps: Option<usize>,
-        #[arg(long)]
+        #[arg(long, value_parser = threads_arg)]
         threads: Option<usize>,
         /// Memory budget of the tape in MB.
         #[arg(long, default_value_t = 1024)]
@@ -100,7 +100,7 @@ enum Command {
         /// pile's column (default 40, at least 10).
         #[arg(long)]
         cells: Option<usize>,
-        #[arg(long)]
+        #[arg(long, value_parser = threads_arg)]
         threads: Option<usize>,
         /// Print one JSON object.
         #[arg(long)]
@@ -115,6 +115,17 @@ enum Command {
     /// `growth` times a substep of `sand_box` variants against the particle count and the grid
     /// and writes growth.json, growth.csv and growth.svg.
     Study(StudyArgs),
+}
+
+/// Parses `--threads`: 0 (all cores) up to [`powderlab::scene::MAX_THREADS`].
+fn threads_arg(s: &str) -> Result<usize, String> {
+    let max = powderlab::scene::MAX_THREADS;
+    match s.parse::<usize>() {
+        Ok(n) if n <= max => Ok(n),
+        _ => Err(format!(
+            "expected a whole number from 0 (all cores) to {max}, got '{s}'"
+        )),
+    }
 }
 
 fn bar(len: u64, quiet: bool) -> ProgressBar {
@@ -165,6 +176,13 @@ fn simulate(
     threads: Option<usize>,
     save_state: Option<PathBuf>,
 ) -> Result<()> {
+    // Refuse an unwritable output before the run, not after it.
+    if let Some(p) = &out {
+        check_output_file(p, "--out")?;
+    }
+    if let Some(p) = &save_state {
+        check_output_file(p, "--save-state")?;
+    }
     let mut sim = Simulation::from_file(
         &scene,
         &SimOptions {
@@ -452,7 +470,7 @@ struct StudyArgs {
     /// Keep the configurations already finished in OUT/results.json.
     #[arg(long)]
     resume: bool,
-    #[arg(long)]
+    #[arg(long, value_parser = threads_arg)]
     threads: Option<usize>,
     /// Print one JSON object.
     #[arg(long)]
@@ -604,8 +622,7 @@ fn growth_cmd(a: StudyArgs) -> Result<()> {
         growth::growth_scene(&base, cfg)?;
     }
     let exe = std::env::current_exe().context("cannot find this executable")?;
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create the output folder {}", a.out.display()))?;
+    powderlab::util::create_output_dir(&a.out, "--out")?;
     let outputs = growth::GrowthOutputs::in_dir(&a.out);
     let pb = bar(plan.len() as u64, a.json);
     let start = Instant::now();
@@ -659,6 +676,9 @@ fn validate_cmd(
     json_out: bool,
     report: Option<PathBuf>,
 ) -> Result<()> {
+    if let Some(p) = &report {
+        check_output_file(p, "--report")?;
+    }
     let mut checks = Vec::new();
     let known = [
         "all",
@@ -928,7 +948,7 @@ struct OptimizeArgs {
     #[arg(long)]
     resume: bool,
     /// Worker threads (default: the scene's setting; 0 = all cores).
-    #[arg(long)]
+    #[arg(long, value_parser = threads_arg)]
     threads: Option<usize>,
     /// RMSprop learning rate.
     #[arg(long, default_value_t = 0.05)]

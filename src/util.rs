@@ -25,6 +25,57 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     std::fs::rename(&tmp, path)
 }
 
+/// Checks, before any work starts, that an output file can be written at `path`: its folder
+/// exists and is a folder, and `path` itself is not a folder. `flag` names the option that gave
+/// the path, so the error says which argument to fix. Without this a missing folder surfaced
+/// only when the file was opened, after the whole run, and the Rerun sink repeated its cause
+/// three times.
+pub fn check_output_file(path: &Path, flag: &str) -> anyhow::Result<()> {
+    if path.is_dir() {
+        anyhow::bail!(
+            "{flag} {}: is a folder; give a file name inside it",
+            path.display()
+        );
+    }
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => return Ok(()),
+    };
+    if !dir.exists() {
+        anyhow::bail!(
+            "{flag} {}: the folder {} does not exist; create it first (mkdir -p {})",
+            path.display(),
+            dir.display(),
+            dir.display()
+        );
+    }
+    if !dir.is_dir() {
+        anyhow::bail!(
+            "{flag} {}: {} is a file, not a folder; choose another path",
+            path.display(),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
+/// Creates the output folder `dir` (and its parents) given by option `flag`, with an error that
+/// says what to do where a file already holds that name.
+pub fn create_output_dir(dir: &Path, flag: &str) -> anyhow::Result<()> {
+    if dir.exists() && !dir.is_dir() {
+        anyhow::bail!(
+            "{flag} {}: is a file, not a folder; give a folder for the outputs",
+            dir.display()
+        );
+    }
+    std::fs::create_dir_all(dir).map_err(|e| {
+        anyhow::anyhow!(
+            "{flag} {}: cannot create the output folder: {e}; choose a writable folder",
+            dir.display()
+        )
+    })
+}
+
 /// Peak resident set size of this process in bytes (Linux `VmHWM`), or 0 where unknown.
 pub fn peak_rss_bytes() -> u64 {
     std::fs::read_to_string("/proc/self/status")

@@ -333,3 +333,13 @@ fn non_positive_point_radius() {
         "{msg}"
     );
 }
+
+/// `threads: 100000` is a typo: it used to spend seconds spawning OS threads before the run.
+#[test]
+fn too_many_threads() {
+    let msg = error_of(&GOOD.replace("steps: Some(1)", "steps: Some(1), threads: 100000"));
+    assert!(
+        msg.contains("simulation.threads") && msg.contains("<= 1024"),
+        "{msg}"
+    );
+}

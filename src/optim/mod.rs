@@ -348,8 +348,7 @@ pub fn run(problem: &Problem, opts: &Options) -> anyhow::Result<RunSummary> {
     if s.epochs == 0 || s.seeds == 0 {
         bail!("--epochs and --seeds must be at least 1");
     }
-    std::fs::create_dir_all(&opts.out)
-        .with_context(|| format!("creating {}", opts.out.display()))?;
+    crate::util::create_output_dir(&opts.out, "--out")?;
     let settings_path = opts.out.join("settings.json");
     let journal_path = opts.out.join("journal.jsonl");
     if opts.resume {

@@ -756,8 +756,7 @@ pub fn run_study(
     mut exec: impl FnMut(&Config) -> ConfigResult,
     mut progress: impl FnMut(usize, &Config),
 ) -> anyhow::Result<(Vec<ConfigResult>, Vec<Row>)> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| anyhow::anyhow!("cannot create the output folder {}: {e}", dir.display()))?;
+    crate::util::create_output_dir(dir, "--out")?;
     let out = Outputs::in_dir(dir);
     let mut done: Vec<ConfigResult> = if resume && out.results.exists() {
         let text = std::fs::read_to_string(&out.results)?;
