@@ -339,11 +339,19 @@ impl Scene {
         let mut scene: Scene = ron::Options::default()
             .with_default_extension(ron::extensions::Extensions::IMPLICIT_SOME)
             .from_str(src)
-            .map_err(|e| SceneError::Parse {
-                file: path.to_path_buf(),
-                line: e.span.start.line,
-                col: e.span.start.col,
-                message: e.code.to_string(),
+            .map_err(|e| {
+                let (line, col) = (e.span.start.line, e.span.start.col);
+                let code = e.code.to_string();
+                SceneError::Parse {
+                    file: path.to_path_buf(),
+                    line,
+                    col,
+                    // ron names the problem but not the field ("Integer is out of bounds").
+                    message: match field_before(src, line, col) {
+                        Some(f) if !code.contains(&f) => format!("field `{f}`: {code}"),
+                        _ => code,
+                    },
+                }
             })?;
         scene.path = path.to_path_buf();
         scene.source = src.to_string();
@@ -832,6 +840,32 @@ fn validate_shape(s: &Shape) -> Result<(), FieldError> {
         }
     }
     Ok(())
+}
+
+/// The field whose value starts the text at 1-based `line`, `col` of `src`: the name before
+/// the last `:` on that line, when only the start of a plain value (a number, a sign, a word)
+/// lies between that `:` and `col`. `None` inside a tuple, list or map, or off a value.
+fn field_before(src: &str, line: usize, col: usize) -> Option<String> {
+    let text = src.lines().nth(line.checked_sub(1)?)?;
+    let prefix: String = text.chars().take(col.saturating_sub(1)).collect();
+    let colon = prefix.rfind(':')?;
+    let value = &prefix[colon + 1..];
+    if value
+        .chars()
+        .any(|c| matches!(c, ',' | '(' | ')' | '[' | ']' | '{' | '}' | '"'))
+    {
+        return None;
+    }
+    let name: String = prefix[..colon]
+        .trim_end()
+        .chars()
+        .rev()
+        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+        .collect::<Vec<_>>()
+        .into_iter()
+        .rev()
+        .collect();
+    (!name.is_empty() && !name.starts_with(|c: char| c.is_ascii_digit())).then_some(name)
 }
 
 /// Line and column (1-based) of a dotted field path such as `colliders[1].shape.radius` in RON

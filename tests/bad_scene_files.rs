@@ -343,3 +343,19 @@ fn too_many_threads() {
         "{msg}"
     );
 }
+
+/// ron says "Integer is out of bounds" without the field; the message adds it.
+#[test]
+fn negative_integer_names_its_field() {
+    let msg = error_of(&GOOD.replace("steps: Some(1)", "steps: Some(1), substeps: -3"));
+    assert!(
+        msg.contains("scenes/bad.ron:2:") && msg.contains("field `substeps`"),
+        "{msg}"
+    );
+    // Inside a tuple no single field is named, and the position still is.
+    let msg = error_of(&GOOD.replace("cells: (24, 24, 24)", "cells: (24, -24, 24)"));
+    assert!(
+        msg.starts_with("scenes/bad.ron:2:") && !msg.contains("field `"),
+        "{msg}"
+    );
+}
