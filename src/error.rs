@@ -102,6 +102,13 @@ pub enum AdjointError {
         index: usize,
         value: String,
     },
+    #[error("the smallest tape for {steps} steps (a checkpoint every {every} steps) needs {need} bytes ({need_mb:.1} MB), over the memory budget of {budget} bytes ({budget_mb:.1} MB): raise --budget-mb to at least {need_mb_ceil} or shorten the horizon", need_mb = *need as f64 / 1048576.0, budget_mb = *budget as f64 / 1048576.0, need_mb_ceil = need.div_ceil(1 << 20))]
+    OverBudget {
+        steps: usize,
+        every: usize,
+        need: usize,
+        budget: usize,
+    },
     #[error(transparent)]
     Sim(#[from] SimError),
 }

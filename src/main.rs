@@ -862,6 +862,9 @@ fn gradcheck_cmd(
     tol: f64,
     json_out: bool,
 ) -> Result<()> {
+    if !(tol.is_finite() && tol > 0.0) {
+        bail!("--tol {tol}: expected a positive relative error, such as 1e-3");
+    }
     let sc = powderlab::scene::Scene::load(&scene)?;
     let steps = match steps {
         Some(s) => s,

@@ -118,3 +118,28 @@ fn output_folder_that_is_a_file() {
     assert_eq!(std::fs::read(&f).unwrap(), b"keep me", "left untouched");
     std::fs::remove_dir_all(&d).ok();
 }
+
+#[test]
+fn gradcheck_tolerance_must_be_positive() {
+    for tol in ["--tol=-1", "--tol=nan", "--tol=0"] {
+        let err = refused(&["gradcheck", SCENE, "--steps", "1", tol]);
+        assert!(err.contains("--tol") && err.contains("positive"), "{err}");
+    }
+}
+
+#[test]
+fn tape_budget_too_small_says_which_option() {
+    let err = refused(&[
+        "bench",
+        SCENE,
+        "--steps",
+        "2",
+        "--backward",
+        "--budget-mb",
+        "0",
+    ]);
+    assert!(
+        err.contains("raise --budget-mb to at least") && !err.contains("cannot be differentiated"),
+        "{err}"
+    );
+}

@@ -115,7 +115,12 @@ fn a_budget_below_the_smallest_tape_is_refused() {
     )
     .unwrap_err()
     .to_string();
-    assert!(err.contains("memory budget of 1000 bytes"), "{err}");
+    assert!(
+        err.contains("memory budget of 1000 bytes")
+            && err.contains("raise --budget-mb to at least"),
+        "{err}"
+    );
+    assert!(!err.contains("cannot be differentiated"), "{err}");
 }
 
 #[test]

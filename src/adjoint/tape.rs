@@ -368,9 +368,12 @@ pub fn checkpoint_interval(
         .min_by_key(|&k| (tape_snapshots(steps, k), usize::MAX - k))
         .unwrap_or(1);
     let need = bytes(k);
-    Err(AdjointError::NotDifferentiable(format!(
-        "the smallest tape for {steps} steps (checkpoint every {k} steps) needs {need} bytes, over the memory budget of {budget_bytes} bytes: raise the budget or shorten the horizon"
-    )))
+    Err(AdjointError::OverBudget {
+        steps,
+        every: k,
+        need,
+        budget: budget_bytes,
+    })
 }
 
 /// How the backward pass chooses its checkpoint interval.
