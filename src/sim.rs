@@ -294,6 +294,7 @@ impl Simulation {
             };
             horizon_from_controls = horizon_from_controls.max(controls.len());
             let r = c.shape.bounding_radius();
+            check_collider_reaches_grid(scene, i, &grid, pose.translation, r, &controls)?;
             for u in &controls {
                 let lin = DVec3::new(u[0], u[1], u[2]).length() / s.dt;
                 let ang = DVec3::new(u[3], u[4], u[5]).length() / s.dt;
@@ -781,6 +782,51 @@ pub fn lowest_local_point(shape: &Shape) -> DVec3 {
         Shape::Cylinder { half_height, .. } => DVec3::new(0.0, -half_height, 0.0),
         Shape::Cup { .. } | Shape::Plane { .. } => DVec3::ZERO,
     }
+}
+
+/// Refuses a collider that never touches the grid: its bounding sphere (radius `r` about the
+/// pose origin) lies outside the domain at the start and at every step of its controls. Such a
+/// collider does nothing, and the usual cause is a position in the wrong units (millimetres
+/// for metres) or a slip of sign, which would otherwise run silently with no container or tool.
+fn check_collider_reaches_grid(
+    scene: &Scene,
+    i: usize,
+    grid: &Grid,
+    start: DVec3,
+    r: f64,
+    controls: &[[f64; 6]],
+) -> Result<(), SceneError> {
+    if !r.is_finite() {
+        return Ok(());
+    }
+    let (lo, hi) = (grid.origin, grid.extent_max());
+    let reaches = |p: DVec3| (p.clamp(lo, hi) - p).length() <= r;
+    let mut p = start;
+    if reaches(p) {
+        return Ok(());
+    }
+    for u in controls {
+        p += DVec3::new(u[0], u[1], u[2]);
+        if reaches(p) {
+            return Ok(());
+        }
+    }
+    let c = &scene.colliders[i];
+    Err(scene.field_error(FieldError::new(
+        format!("colliders[{i}].position"),
+        format!("{:?}", c.position),
+        format!(
+            "a collider that reaches the simulation domain ({:.4}, {:.4}, {:.4})–({:.4}, {:.4}, {:.4}) m at some step ('{}' stays outside it{}); positions are in metres",
+            lo.x,
+            lo.y,
+            lo.z,
+            hi.x,
+            hi.y,
+            hi.z,
+            c.name,
+            if controls.is_empty() { "" } else { " over its whole trajectory" }
+        ),
+    )))
 }
 
 /// Refuses a tool that starts inside a container's wall: samples points of the tool's solid on

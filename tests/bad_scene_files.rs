@@ -359,3 +359,19 @@ fn negative_integer_names_its_field() {
         "{msg}"
     );
 }
+
+/// A container written in millimetres (110 for 0.11 m) sits far outside the grid and used to
+/// run silently with no container at all.
+#[test]
+fn collider_outside_the_domain() {
+    let msg = error_of(&GOOD.replace(
+        "position: (0.11, 0.11, 0.11)",
+        "position: (110.0, 110.0, 110.0)",
+    ));
+    assert!(
+        msg.contains("colliders[0].position")
+            && msg.contains("reaches the simulation domain")
+            && msg.contains("metres"),
+        "{msg}"
+    );
+}
