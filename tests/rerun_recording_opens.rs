@@ -38,7 +38,7 @@ fn recording_opens_in_rerun_and_has_the_entities() {
             "/metrics/total_energy",
         ],
     );
-    let verify = Command::new("rerun")
+    let verify = common::rerun_cli()
         .args(["rrd", "verify"])
         .arg(&out)
         .output()

@@ -53,20 +53,41 @@ pub fn load_test_scene(name: &str) -> Scene {
     Scene::load(p).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The official Rerun CLI (PyPI rerun-sdk==0.36.3), analytics off: `rerun` where it is on the
+/// PATH, else `python3 -m rerun`, the same CLI through the Python that installed it (pip puts
+/// the `rerun` script in a folder that is not always on the PATH, e.g. `~/.local/bin`).
+pub fn rerun_cli() -> std::process::Command {
+    let on_path = std::process::Command::new("rerun")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    let mut c = if on_path {
+        std::process::Command::new("rerun")
+    } else {
+        let mut c = std::process::Command::new("python3");
+        c.args(["-m", "rerun"]);
+        c
+    };
+    c.env("RERUN_ANALYTICS", "0");
+    c
+}
+
 /// Opens `rrd` with the official Rerun CLI (`rerun rrd stats`, PyPI rerun-sdk==0.36.3) and
 /// asserts that it reads and holds every one of `entities`.
 pub fn assert_rrd_has(rrd: &Path, entities: &[&str]) {
-    let stats = std::process::Command::new("rerun")
+    let stats = rerun_cli()
         .args(["rrd", "stats"])
         .arg(rrd)
-        .env("RERUN_ANALYTICS", "0")
         .output()
         .unwrap_or_else(|e| {
             panic!("the Rerun CLI is needed for this test: pip install rerun-sdk==0.36.3 ({e})")
         });
     let text = String::from_utf8_lossy(&stats.stdout).to_string()
         + &String::from_utf8_lossy(&stats.stderr);
-    assert!(stats.status.success(), "rerun rrd stats failed: {text}");
+    assert!(
+        stats.status.success(),
+        "rerun rrd stats failed (the CLI comes from pip install rerun-sdk==0.36.3): {text}"
+    );
     for entity in entities {
         assert!(
             text.contains(entity),
