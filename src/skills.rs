@@ -85,7 +85,7 @@ pub fn map_range(theta: f64, (lo, hi): (f64, f64)) -> f64 {
 /// Number of steps for a displacement at a speed: `max(1, round(|d|/(s·Δt)))`.
 #[inline]
 pub fn phase_steps(distance: f64, speed: f64, dt: f64) -> usize {
-    ((distance.abs() / (speed * dt)).round() as usize).max(1)
+    phase_steps_f64(distance, speed, dt) as usize
 }
 
 /// The six phases, in order.
@@ -105,7 +105,8 @@ pub enum StepsSetBy {
     SettleSteps,
 }
 
-/// `phase_steps` in f64, without the cast: it neither saturates nor allocates.
+/// [`phase_steps`] in f64, before the cast: a bound on an absurd count that neither saturates
+/// nor allocates.
 fn phase_steps_f64(distance: f64, speed: f64, dt: f64) -> f64 {
     (distance.abs() / (speed * dt)).round().max(1.0)
 }
