@@ -76,27 +76,24 @@ pub fn create_output_dir(dir: &Path, flag: &str) -> anyhow::Result<()> {
     })
 }
 
+/// The value in kB of the line `key` of a `/proc` file (`VmHWM:` of `/proc/self/status`,
+/// `MemAvailable:` of `/proc/meminfo`), in bytes; `None` where the file or the line is missing.
+fn proc_kb(file: &str, key: &str) -> Option<u64> {
+    let s = std::fs::read_to_string(file).ok()?;
+    let l = s.lines().find(|l| l.starts_with(key))?;
+    let kb: u64 = l.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
 /// Peak resident set size of this process in bytes (Linux `VmHWM`), or 0 where unknown.
 pub fn peak_rss_bytes() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines().find(|l| l.starts_with("VmHWM:")).and_then(|l| {
-                l.split_whitespace()
-                    .nth(1)
-                    .and_then(|k| k.parse::<u64>().ok())
-            })
-        })
-        .map_or(0, |kb| kb * 1024)
+    proc_kb("/proc/self/status", "VmHWM:").unwrap_or(0)
 }
 
 /// Memory the kernel can give this process without swapping (`MemAvailable` of
 /// `/proc/meminfo`), or `None` where that file does not exist.
 pub fn available_memory_bytes() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let l = s.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kb: u64 = l.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    proc_kb("/proc/meminfo", "MemAvailable:")
 }
 
 /// A small deterministic generator (SplitMix64, Steele et al. 2014): the lattice jitter and
