@@ -89,6 +89,15 @@ impl Compound<'_> {
     }
 }
 
+/// Serializer methods that accept a value and look no further.
+macro_rules! ignore {
+    ($($method:ident : $ty:ty),*) => {$(
+        fn $method(self, _: $ty) -> Result<(), Found> {
+            Ok(())
+        }
+    )*};
+}
+
 impl<'a> ser::Serializer for &'a mut Walker {
     type Ok = ();
     type Error = Found;
@@ -100,47 +109,26 @@ impl<'a> ser::Serializer for &'a mut Walker {
     type SerializeStruct = Compound<'a>;
     type SerializeStructVariant = Compound<'a>;
 
-    fn serialize_bool(self, _: bool) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_i8(self, _: i8) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_i16(self, _: i16) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_i32(self, _: i32) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_i64(self, _: i64) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_u8(self, _: u8) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_u16(self, _: u16) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_u32(self, _: u32) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_u64(self, _: u64) -> Result<(), Found> {
-        Ok(())
-    }
+    // Everything but a float is finite by construction.
+    ignore!(
+        serialize_bool: bool,
+        serialize_i8: i8,
+        serialize_i16: i16,
+        serialize_i32: i32,
+        serialize_i64: i64,
+        serialize_u8: u8,
+        serialize_u16: u16,
+        serialize_u32: u32,
+        serialize_u64: u64,
+        serialize_char: char,
+        serialize_str: &str,
+        serialize_bytes: &[u8]
+    );
     fn serialize_f32(self, v: f32) -> Result<(), Found> {
         self.float(v as f64)
     }
     fn serialize_f64(self, v: f64) -> Result<(), Found> {
         self.float(v)
-    }
-    fn serialize_char(self, _: char) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_str(self, _: &str) -> Result<(), Found> {
-        Ok(())
-    }
-    fn serialize_bytes(self, _: &[u8]) -> Result<(), Found> {
-        Ok(())
     }
     fn serialize_none(self) -> Result<(), Found> {
         Ok(())
@@ -211,79 +199,48 @@ impl<'a> ser::Serializer for &'a mut Walker {
     }
 }
 
-impl ser::SerializeSeq for Compound<'_> {
-    type Ok = ();
-    type Error = Found;
-    fn serialize_element<T: Serialize + ?Sized>(&mut self, v: &T) -> Result<(), Found> {
-        self.item(v)
-    }
-    fn end(self) -> Result<(), Found> {
-        Ok(())
-    }
+/// Lists and tuples of every kind: each item is the next `[i]`.
+macro_rules! items {
+    ($($trait:ident :: $method:ident),*) => {$(
+        impl ser::$trait for Compound<'_> {
+            type Ok = ();
+            type Error = Found;
+            fn $method<T: Serialize + ?Sized>(&mut self, v: &T) -> Result<(), Found> {
+                self.item(v)
+            }
+            fn end(self) -> Result<(), Found> {
+                Ok(())
+            }
+        }
+    )*};
 }
+items!(
+    SerializeSeq::serialize_element,
+    SerializeTuple::serialize_element,
+    SerializeTupleStruct::serialize_field,
+    SerializeTupleVariant::serialize_field
+);
 
-impl ser::SerializeTuple for Compound<'_> {
-    type Ok = ();
-    type Error = Found;
-    fn serialize_element<T: Serialize + ?Sized>(&mut self, v: &T) -> Result<(), Found> {
-        self.item(v)
-    }
-    fn end(self) -> Result<(), Found> {
-        Ok(())
-    }
+/// Structs and struct variants: each field is a `.name` segment.
+macro_rules! fields {
+    ($($trait:ident),*) => {$(
+        impl ser::$trait for Compound<'_> {
+            type Ok = ();
+            type Error = Found;
+            fn serialize_field<T: Serialize + ?Sized>(
+                &mut self,
+                name: &'static str,
+                v: &T,
+            ) -> Result<(), Found> {
+                self.w.nested(name.to_string(), v)
+            }
+            fn end(self) -> Result<(), Found> {
+                Ok(())
+            }
+        }
+    )*};
 }
-
-impl ser::SerializeTupleStruct for Compound<'_> {
-    type Ok = ();
-    type Error = Found;
-    fn serialize_field<T: Serialize + ?Sized>(&mut self, v: &T) -> Result<(), Found> {
-        self.item(v)
-    }
-    fn end(self) -> Result<(), Found> {
-        Ok(())
-    }
-}
-
-impl ser::SerializeTupleVariant for Compound<'_> {
-    type Ok = ();
-    type Error = Found;
-    fn serialize_field<T: Serialize + ?Sized>(&mut self, v: &T) -> Result<(), Found> {
-        self.item(v)
-    }
-    fn end(self) -> Result<(), Found> {
-        Ok(())
-    }
-}
-
-impl ser::SerializeStruct for Compound<'_> {
-    type Ok = ();
-    type Error = Found;
-    fn serialize_field<T: Serialize + ?Sized>(
-        &mut self,
-        name: &'static str,
-        v: &T,
-    ) -> Result<(), Found> {
-        self.w.nested(name.to_string(), v)
-    }
-    fn end(self) -> Result<(), Found> {
-        Ok(())
-    }
-}
-
-impl ser::SerializeStructVariant for Compound<'_> {
-    type Ok = ();
-    type Error = Found;
-    fn serialize_field<T: Serialize + ?Sized>(
-        &mut self,
-        name: &'static str,
-        v: &T,
-    ) -> Result<(), Found> {
-        self.w.nested(name.to_string(), v)
-    }
-    fn end(self) -> Result<(), Found> {
-        Ok(())
-    }
-}
+fields!(SerializeStruct, SerializeStructVariant);
 
 /// Maps: a string key names its value's path segment.
 struct MapWalker<'a> {
@@ -309,141 +266,10 @@ impl ser::SerializeMap for MapWalker<'_> {
 
 /// A map key as text: a string as itself, anything else as `?`.
 fn key_name<T: Serialize + ?Sized>(k: &T) -> String {
-    struct Text(Option<String>);
-    impl ser::Serializer for &mut Text {
-        type Ok = ();
-        type Error = Found;
-        type SerializeSeq = ser::Impossible<(), Found>;
-        type SerializeTuple = ser::Impossible<(), Found>;
-        type SerializeTupleStruct = ser::Impossible<(), Found>;
-        type SerializeTupleVariant = ser::Impossible<(), Found>;
-        type SerializeMap = ser::Impossible<(), Found>;
-        type SerializeStruct = ser::Impossible<(), Found>;
-        type SerializeStructVariant = ser::Impossible<(), Found>;
-        fn serialize_str(self, v: &str) -> Result<(), Found> {
-            self.0 = Some(v.to_string());
-            Ok(())
-        }
-        fn serialize_bool(self, _: bool) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_i8(self, _: i8) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_i16(self, _: i16) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_i32(self, _: i32) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_i64(self, _: i64) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_u8(self, _: u8) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_u16(self, _: u16) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_u32(self, _: u32) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_u64(self, _: u64) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_f32(self, _: f32) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_f64(self, _: f64) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_char(self, _: char) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_bytes(self, _: &[u8]) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_none(self) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_some<T: Serialize + ?Sized>(self, _: &T) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_unit(self) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_unit_struct(self, _: &'static str) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_unit_variant(
-            self,
-            _: &'static str,
-            _: u32,
-            _: &'static str,
-        ) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_newtype_struct<T: Serialize + ?Sized>(
-            self,
-            _: &'static str,
-            v: &T,
-        ) -> Result<(), Found> {
-            v.serialize(self)
-        }
-        fn serialize_newtype_variant<T: Serialize + ?Sized>(
-            self,
-            _: &'static str,
-            _: u32,
-            _: &'static str,
-            _: &T,
-        ) -> Result<(), Found> {
-            Err(Found)
-        }
-        fn serialize_seq(self, _: Option<usize>) -> Result<Self::SerializeSeq, Found> {
-            Err(Found)
-        }
-        fn serialize_tuple(self, _: usize) -> Result<Self::SerializeTuple, Found> {
-            Err(Found)
-        }
-        fn serialize_tuple_struct(
-            self,
-            _: &'static str,
-            _: usize,
-        ) -> Result<Self::SerializeTupleStruct, Found> {
-            Err(Found)
-        }
-        fn serialize_tuple_variant(
-            self,
-            _: &'static str,
-            _: u32,
-            _: &'static str,
-            _: usize,
-        ) -> Result<Self::SerializeTupleVariant, Found> {
-            Err(Found)
-        }
-        fn serialize_map(self, _: Option<usize>) -> Result<Self::SerializeMap, Found> {
-            Err(Found)
-        }
-        fn serialize_struct(
-            self,
-            _: &'static str,
-            _: usize,
-        ) -> Result<Self::SerializeStruct, Found> {
-            Err(Found)
-        }
-        fn serialize_struct_variant(
-            self,
-            _: &'static str,
-            _: u32,
-            _: &'static str,
-            _: usize,
-        ) -> Result<Self::SerializeStructVariant, Found> {
-            Err(Found)
-        }
+    match serde_json::to_value(k) {
+        Ok(serde_json::Value::String(s)) => s,
+        _ => "?".to_string(),
     }
-    let mut t = Text(None);
-    let _ = k.serialize(&mut t);
-    t.0.unwrap_or_else(|| "?".to_string())
 }
 
 #[cfg(test)]
