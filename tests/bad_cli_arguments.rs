@@ -29,30 +29,37 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-#[test]
-fn recording_into_a_missing_folder() {
-    let d = scratch("rrd");
-    let out = d.join("missing").join("run.rrd");
-    let err = refused(&["simulate", SCENE, "--steps", "1", "--out", s(&out)]);
+/// Runs `powderlab ARGS FLAG DIR/missing/FILE`, expects the refusal to name `flag` and the
+/// missing folder, and that folder still not to exist; returns the error.
+fn into_missing_folder(args: &[&str], flag: &str, file: &str) -> String {
+    let d = scratch(flag.trim_start_matches('-'));
+    let out = d.join("missing").join(file);
+    let err = refused(&[args, &[flag, s(&out)]].concat());
     assert!(
-        err.contains("--out") && err.contains("does not exist") && err.contains("mkdir -p"),
+        err.contains(flag) && err.contains("does not exist"),
         "{err}"
     );
-    // One statement of the cause, not the Rerun sink's three nested copies of it.
-    assert_eq!(err.matches("does not exist").count(), 1, "{err}");
     assert!(!d.join("missing").exists());
     std::fs::remove_dir_all(&d).ok();
+    err
+}
+
+#[test]
+fn recording_into_a_missing_folder() {
+    let err = into_missing_folder(&["simulate", SCENE, "--steps", "1"], "--out", "run.rrd");
+    assert!(err.contains("mkdir -p"), "{err}");
+    // One statement of the cause, not the Rerun sink's three nested copies of it.
+    assert_eq!(err.matches("does not exist").count(), 1, "{err}");
 }
 
 #[test]
 fn state_into_a_missing_folder_or_onto_a_folder() {
-    let d = scratch("ply");
-    let out = d.join("missing").join("state.ply");
-    let err = refused(&["simulate", SCENE, "--steps", "1", "--save-state", s(&out)]);
-    assert!(
-        err.contains("--save-state") && err.contains("does not exist"),
-        "{err}"
+    into_missing_folder(
+        &["simulate", SCENE, "--steps", "1"],
+        "--save-state",
+        "state.ply",
     );
+    let d = scratch("ply");
     let err = refused(&["simulate", SCENE, "--steps", "1", "--save-state", s(&d)]);
     assert!(
         err.contains("--save-state") && err.contains("is a folder"),
@@ -64,14 +71,7 @@ fn state_into_a_missing_folder_or_onto_a_folder() {
 
 #[test]
 fn report_into_a_missing_folder() {
-    let d = scratch("report");
-    let out = d.join("missing").join("report.json");
-    let err = refused(&["validate", "free_fall", "--report", s(&out)]);
-    assert!(
-        err.contains("--report") && err.contains("does not exist"),
-        "{err}"
-    );
-    std::fs::remove_dir_all(&d).ok();
+    into_missing_folder(&["validate", "free_fall"], "--report", "report.json");
 }
 
 #[test]
