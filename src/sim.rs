@@ -75,7 +75,6 @@ pub struct Simulation {
     pub scene: Scene,
 }
 
-/// Particles of a fill, before collider clearance and domain checks.
 /// Bytes a forward simulation holds per grid node: mass, momentum and velocity in f64
 /// (`study growth`'s grid series measured 56 bytes per node of peak RSS).
 const GRID_BYTES_PER_NODE: f64 = 56.0;
@@ -113,16 +112,16 @@ fn check_memory(
     )))
 }
 
-/// Lattice points `fill_points` visits for a body (its fill's bounding lattice), in f64 so
-/// that an absurd fill is measured, not allocated.
-fn fill_lattice_count(scene: &Scene, body: &BodySpec) -> f64 {
-    let ppa = (body.particles_per_cell as f64).cbrt().round();
-    let h = scene.simulation.dx / ppa;
+/// The lattice a body's fill is cut from: its first corner, its spacing and its point count
+/// per axis (for `InsideContainer`, in the cup's own frame). The counts are in f64, so that the
+/// memory check measures an absurd fill before `fill_points` allocates it.
+fn fill_lattice(scene: &Scene, body: &BodySpec) -> (DVec3, f64, DVec3) {
+    let h = scene.particle_spacing(body);
     let (lo, hi) = fill_bounds(scene, body);
     let n = ((hi - lo) / h + DVec3::splat(1e-9))
         .floor()
         .max(DVec3::ZERO);
-    n.x * n.y * n.z
+    (lo, h, n)
 }
 
 /// The box the fill's lattice spans (for `InsideContainer`, in the cup's own frame).
@@ -150,19 +149,23 @@ fn fill_bounds(scene: &Scene, body: &BodySpec) -> (DVec3, DVec3) {
             )
         }
         Fill::InsideContainer { container, height } => {
-            let (r, floor) = cup_cavity(scene, container);
+            let (r, floor) = cup_cavity(fill_container(scene, container));
             (DVec3::new(-r, floor, -r), DVec3::new(r, floor + height, r))
         }
     }
 }
 
-/// The cavity radius and floor height of a cup collider, in its own frame.
-fn cup_cavity(scene: &Scene, container: &str) -> (f64, f64) {
-    let c = scene
+/// The collider an `InsideContainer` fill names.
+fn fill_container<'a>(scene: &'a Scene, container: &str) -> &'a ColliderSpec {
+    scene
         .colliders
         .iter()
         .find(|c| c.name == container)
-        .expect("validated");
+        .expect("validated")
+}
+
+/// The cavity radius and floor height of a cup collider, in its own frame.
+fn cup_cavity(c: &ColliderSpec) -> (f64, f64) {
     let Shape::Cup {
         outer_radius,
         wall_thickness,
@@ -175,13 +178,10 @@ fn cup_cavity(scene: &Scene, container: &str) -> (f64, f64) {
     (outer_radius - wall_thickness, floor_thickness)
 }
 
+/// Particles of a fill, before collider clearance and domain checks.
 fn fill_points(scene: &Scene, body: &BodySpec) -> Vec<DVec3> {
-    let dx = scene.simulation.dx;
-    let ppa = (body.particles_per_cell as f64).cbrt().round() as usize;
-    let h = dx / ppa as f64;
     let lattice = |keep: &dyn Fn(DVec3) -> bool| -> Vec<DVec3> {
-        let (lo, hi) = fill_bounds(scene, body);
-        let n = ((hi - lo) / h + DVec3::splat(1e-9)).floor();
+        let (lo, h, n) = fill_lattice(scene, body);
         let (nx, ny, nz) = (n.x as usize, n.y as usize, n.z as usize);
         let mut out = Vec::with_capacity(nx * ny * nz);
         for i in 0..nx {
@@ -203,12 +203,8 @@ fn fill_points(scene: &Scene, body: &BodySpec) -> Vec<DVec3> {
             lattice(&|p| (p.x - b.x).hypot(p.z - b.z) < *radius)
         }
         Fill::InsideContainer { container, .. } => {
-            let (r, _) = cup_cavity(scene, container);
-            let c = scene
-                .colliders
-                .iter()
-                .find(|c| &c.name == container)
-                .expect("validated");
+            let c = fill_container(scene, container);
+            let (r, _) = cup_cavity(c);
             let pose = Pose {
                 translation: DVec3::from(c.position),
                 rotation: Scene::collider_rotation(c),
@@ -236,7 +232,10 @@ impl Simulation {
         let candidates: f64 = scene
             .bodies
             .iter()
-            .map(|b| fill_lattice_count(scene, b))
+            .map(|b| {
+                let n = fill_lattice(scene, b).2;
+                n.x * n.y * n.z
+            })
             .sum();
         check_memory(
             scene,
@@ -452,12 +451,12 @@ impl Simulation {
                 speed(max_speed),
                 s.cfl
             );
-            let refuse = |advice: String| SceneError::Unstable {
+            let refuse = move |advice: String| SceneError::Unstable {
                 file: scene.path.clone(),
                 dt_sub,
                 dt_max,
                 needed,
-                reason: reason.clone(),
+                reason,
                 advice,
             };
             if too_many {
