@@ -663,6 +663,22 @@ impl Scene {
         )
     }
 
+    /// A collider's start pose, as the scene places it.
+    pub fn collider_pose(c: &ColliderSpec) -> Pose {
+        Pose {
+            translation: DVec3::from(c.position),
+            rotation: Scene::collider_rotation(c),
+        }
+    }
+
+    /// Height of a tool's lowest point at its start pose: where a skill's descent is measured
+    /// from.
+    pub fn tool_bottom(c: &ColliderSpec) -> f64 {
+        Scene::collider_pose(c)
+            .to_world(crate::sim::lowest_local_point(&c.shape))
+            .y
+    }
+
     /// Particle spacing of a body (m): `dx/∛ppc`.
     pub fn particle_spacing(&self, body: &BodySpec) -> f64 {
         let ppa = (body.particles_per_cell as f64).cbrt().round();
@@ -681,11 +697,7 @@ impl Scene {
     pub fn target_region(&self) -> Option<CupRegion> {
         let t = self.task.as_ref()?;
         let c = self.colliders.iter().find(|c| c.name == t.target)?;
-        let pose = Pose {
-            translation: DVec3::from(c.position),
-            rotation: Scene::collider_rotation(c),
-        };
-        CupRegion::of(&c.shape, pose)
+        CupRegion::of(&c.shape, Scene::collider_pose(c))
     }
 
     /// Grid node (0,0,0) and the upper node corner.
@@ -704,12 +716,7 @@ impl Scene {
 /// naming the field that sets its longest phase.
 fn skill_horizon(sk: &SkillSpec, c: &ColliderSpec, dt: f64) -> Result<(), FieldError> {
     use crate::skills::{StepsSetBy, MAX_CONTROL_STEPS, PHASES};
-    let pose = Pose {
-        translation: DVec3::from(c.position),
-        rotation: Scene::collider_rotation(c),
-    };
-    let bottom = pose.to_world(crate::sim::lowest_local_point(&c.shape)).y;
-    let bound = sk.step_bound(dt, bottom);
+    let bound = sk.step_bound(dt, Scene::tool_bottom(c));
     let total: f64 = bound.iter().map(|b| b.0).sum();
     if total <= MAX_CONTROL_STEPS as f64 {
         return Ok(());

@@ -205,10 +205,7 @@ fn fill_points(scene: &Scene, body: &BodySpec) -> Vec<DVec3> {
         Fill::InsideContainer { container, .. } => {
             let c = fill_container(scene, container);
             let (r, _) = cup_cavity(c);
-            let pose = Pose {
-                translation: DVec3::from(c.position),
-                rotation: Scene::collider_rotation(c),
-            };
+            let pose = Scene::collider_pose(c);
             lattice(&|p| p.x.hypot(p.z) < r)
                 .into_iter()
                 .map(|p| pose.to_world(p))
@@ -264,10 +261,7 @@ impl Simulation {
         let mut horizon_from_controls = 0usize;
         let mut max_speed = 0.0f64;
         for (i, c) in scene.colliders.iter().enumerate() {
-            let pose = Pose {
-                translation: DVec3::from(c.position),
-                rotation: Scene::collider_rotation(c),
-            };
+            let pose = Scene::collider_pose(c);
             let kind = match c.kind {
                 ColliderKindSpec::Tool => ColliderKind::Tool,
                 ColliderKindSpec::Container => ColliderKind::Container,
@@ -286,10 +280,7 @@ impl Simulation {
                     .map(|x| x * s.dt);
                     vec![u; *steps]
                 }
-                Some(ControlSpec::Skill(sk)) => {
-                    let bottom = pose.to_world(lowest_local_point(&c.shape)).y;
-                    sk.controls(s.dt, bottom).0
-                }
+                Some(ControlSpec::Skill(sk)) => sk.controls(s.dt, Scene::tool_bottom(c)).0,
             };
             horizon_from_controls = horizon_from_controls.max(controls.len());
             let r = c.shape.bounding_radius();

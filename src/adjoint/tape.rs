@@ -874,11 +874,7 @@ fn skill_gradients(scene: &crate::scene::Scene, tools: &[ToolGrad]) -> Vec<(Stri
             let Some(crate::scene::ControlSpec::Skill(sk)) = &c.control else {
                 return None;
             };
-            let pose = crate::math::pose::Pose {
-                translation: DVec3::from(c.position),
-                rotation: crate::scene::Scene::collider_rotation(c),
-            };
-            let bottom = pose.to_world(crate::sim::lowest_local_point(&c.shape)).y;
+            let bottom = crate::scene::Scene::tool_bottom(c);
             Some((
                 name.clone(),
                 sk.controls_adj(scene.simulation.dt, bottom, g_u),
