@@ -530,6 +530,18 @@ impl Simulation {
             });
         }
         let threads = opts.threads.unwrap_or(s.threads);
+        if threads > crate::scene::MAX_THREADS && !opts.shared_pool {
+            // The scene file and the CLI are checked where they are read; this is a caller in
+            // code (a pool of 100,000 threads was measured to take minutes to start).
+            return Err(SceneError::Invalid {
+                file: scene.path.clone(),
+                line: 1,
+                col: 1,
+                field: "SimOptions::threads".into(),
+                value: threads.to_string(),
+                expected: format!("<= {} (0 uses all cores)", crate::scene::MAX_THREADS),
+            });
+        }
         let pool = if opts.shared_pool {
             None
         } else {

@@ -345,6 +345,25 @@ fn too_many_threads() {
     );
 }
 
+/// The same bound for a caller in code, whose thread count does not come from the scene file.
+#[test]
+fn too_many_threads_from_code() {
+    let s = Scene::parse(GOOD, Path::new("scenes/good.ron")).unwrap();
+    let opts = |threads| SimOptions {
+        threads: Some(threads),
+        ..Default::default()
+    };
+    let msg = Simulation::new(&s, &opts(100_000))
+        .map(|_| ())
+        .expect_err("refused")
+        .to_string();
+    assert!(
+        msg.contains("SimOptions::threads") && msg.contains("100000") && msg.contains("<= 1024"),
+        "{msg}"
+    );
+    Simulation::new(&s, &opts(powderlab::scene::MAX_THREADS.min(4))).unwrap();
+}
+
 /// ron says "Integer is out of bounds" without the field; the message adds it.
 #[test]
 fn negative_integer_names_its_field() {
