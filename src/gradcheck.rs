@@ -82,8 +82,7 @@ pub fn loss_target(scene: &Scene) -> DVec3 {
                 floor_thickness, ..
             } = c.shape
             {
-                return DVec3::from(c.position)
-                    + Scene::collider_rotation(c) * DVec3::new(0.0, floor_thickness, 0.0);
+                return Scene::collider_pose(c).to_world(DVec3::new(0.0, floor_thickness, 0.0));
             }
         }
     }
