@@ -10,7 +10,6 @@ use crate::adjoint::loss::Dosing;
 use crate::adjoint::tape::{gradient, Loss, Tape};
 use crate::components::{Position, Velocity};
 use crate::materials::MaterialSpec;
-use crate::math::sdf::Shape;
 use crate::scene::{LossSpec, Scene};
 use crate::sim::{SimOptions, Simulation};
 use glam::DVec3;
@@ -74,17 +73,11 @@ pub fn scene_loss(scene: &Scene) -> Loss {
     }
 }
 
-/// The default loss target of a scene.
+/// The default loss target of a scene: the middle of the target cup's floor, else the middle of
+/// the domain's floor.
 pub fn loss_target(scene: &Scene) -> DVec3 {
-    if let Some(t) = &scene.task {
-        if let Some(c) = scene.colliders.iter().find(|c| c.name == t.target) {
-            if let Shape::Cup {
-                floor_thickness, ..
-            } = c.shape
-            {
-                return Scene::collider_pose(c).to_world(DVec3::new(0.0, floor_thickness, 0.0));
-            }
-        }
+    if let Some(cup) = scene.target_region() {
+        return cup.pose.to_world(DVec3::new(0.0, cup.floor, 0.0));
     }
     let (lo, hi) = scene.domain();
     DVec3::new(0.5 * (lo.x + hi.x), lo.y, 0.5 * (lo.z + hi.z))
