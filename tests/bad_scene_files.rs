@@ -361,7 +361,7 @@ fn too_many_threads_from_code() {
         msg.contains("SimOptions::threads") && msg.contains("100000") && msg.contains("<= 1024"),
         "{msg}"
     );
-    Simulation::new(&s, &opts(powderlab::scene::MAX_THREADS.min(4))).unwrap();
+    Simulation::new(&s, &opts(4)).unwrap();
 }
 
 /// ron says "Integer is out of bounds" without the field; the message adds it.
