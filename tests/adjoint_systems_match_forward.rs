@@ -699,3 +699,74 @@ fn stages_flag_the_non_finite_values_they_write() {
         }
     }
 }
+
+/// The forward mirror of the test above: each forward stage that checks what it writes tests
+/// each value while it holds it and, only when one is not finite, scans the field to name the
+/// first bad particle or node. A NaN put into one particle's input must be reported with that
+/// stage, field and index, and finite input must report nothing.
+#[test]
+fn forward_stages_report_the_non_finite_values_they_write() {
+    // Particle 5 sits alone at the low corner: its stencil (nodes 1..=3 on each axis) holds the
+    // only particle that reaches node (1, 1, 1); every other one starts at node 2 or above.
+    const LONE: usize = 5;
+    let lone_x = DVec3::splat(0.015);
+    type Setup = fn(&mut World, Entity, bool);
+    // (stage, field, how the input is set and the stage run, expected index)
+    let cases: [(&str, &str, Setup); 4] = [
+        ("p2g", "grid velocity", |w, e, bad| {
+            if bad {
+                w.get_mut::<P2gAffine>(e).unwrap().0[LONE].y_axis.z = f64::NAN;
+            }
+            w.run_system_once(systems::grid_reset::grid_reset).unwrap();
+            w.run_system_once(systems::p2g::p2g).unwrap();
+        }),
+        ("constitutive", "F", |w, e, bad| {
+            if bad {
+                w.get_mut::<SvdFactors>(e).unwrap().u[LONE].x_axis.y = f64::NAN;
+            }
+            w.run_system_once(systems::constitutive::constitutive_model::<DruckerPrager>)
+                .unwrap();
+        }),
+        ("g2p", "v", |w, _, bad| {
+            let mut g = w.resource_mut::<Grid>();
+            g.velocity
+                .iter_mut()
+                .for_each(|v| *v = DVec3::new(0.1, -0.2, 0.3));
+            if bad {
+                let i = g.index(1, 1, 1);
+                g.velocity[i].x = f64::NAN;
+            }
+            w.run_system_once(systems::g2p::g2p).unwrap();
+        }),
+        ("advect", "x", |w, e, bad| {
+            if bad {
+                w.get_mut::<Velocity>(e).unwrap().0[LONE].z = f64::NAN;
+            }
+            w.run_system_once(systems::advect::advect).unwrap();
+        }),
+    ];
+    for (k, (stage, field, run)) in cases.iter().enumerate() {
+        for bad in [false, true] {
+            let mut rng = Rng(200 + k as u64);
+            let (mut w, e) = world(&mut rng);
+            w.get_mut::<Position>(e).unwrap().0[LONE] = lone_x;
+            run(&mut w, e, bad);
+            let fault = w.resource_mut::<Health>().fault.take();
+            if !bad {
+                assert_eq!(fault, None, "{stage} on finite input");
+                continue;
+            }
+            let fault = fault.unwrap_or_else(|| panic!("{stage} did not report the NaN"));
+            let index = if *stage == "p2g" {
+                w.resource::<Grid>().index(1, 1, 1)
+            } else {
+                LONE
+            };
+            assert_eq!(
+                (fault.stage, fault.field, fault.index),
+                (*stage, *field, index),
+                "{fault}"
+            );
+        }
+    }
+}

@@ -6,6 +6,7 @@
 //! Reads `Velocity`; writes `Position`; reports non-finite positions to `Health`.
 
 use crate::components::*;
+use crate::systems::{first_nonfinite_vec, FiniteWatch};
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -20,12 +21,15 @@ pub fn advect(
     let lo = grid.origin + DVec3::splat(grid.dx);
     let hi = grid.extent_max() - DVec3::splat(grid.dx);
     for (body, mut x, v) in &mut bodies {
+        let watch = FiniteWatch::default();
         x.0.par_iter_mut().zip(v.0.par_iter()).for_each(|(x, v)| {
             let y = *x + *v * dt;
             // A non-finite value must survive the clamp (f64::max would swallow a NaN).
-            *x = if y.is_finite() { y.clamp(lo, hi) } else { y };
+            let finite = y.is_finite();
+            *x = if finite { y.clamp(lo, hi) } else { y };
+            watch.check(finite);
         });
-        if let Some(i) = crate::systems::first_nonfinite_vec(&x.0) {
+        if let Some(i) = watch.raised().then(|| first_nonfinite_vec(&x.0)).flatten() {
             health.report(Fault {
                 stage: "advect",
                 field: "x",

@@ -9,7 +9,7 @@
 
 use crate::components::*;
 use crate::materials::Material;
-use crate::systems::first_nonfinite_mat;
+use crate::systems::{first_nonfinite_mat, FiniteWatch};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -42,6 +42,7 @@ pub fn constitutive_model<M: Material>(
     for (mat, body, svd, ft, c, mut f, mut aff, hard, saved) in &mut bodies {
         let stress_coef = -dt * body.particle_volume * 4.0 * inv_dx2;
         let mass = body.particle_mass;
+        let watch = FiniteWatch::default();
         let update = |i: usize,
                       q: &mut f64,
                       saved: Option<&mut crate::materials::Saved>,
@@ -57,6 +58,7 @@ pub fn constitutive_model<M: Material>(
             };
             let tau = compose(svd.u[i], tau_p, svd.u[i]);
             *a_out = tau * stress_coef + c.0[i] * mass;
+            watch.check(f_out.is_finite() && a_out.is_finite());
         };
         if let Some(sv) = &saved {
             // The zip below would silently skip particles past a short buffer.
@@ -74,6 +76,9 @@ pub fn constitutive_model<M: Material>(
                 .zip(sv.0.par_iter_mut())
                 .for_each(|((i, (fo, ao)), s)| update(i, &mut 0.0, Some(s), fo, ao)),
             (None, None) => fa.for_each(|(i, (fo, ao))| update(i, &mut 0.0, None, fo, ao)),
+        }
+        if !watch.raised() {
+            continue;
         }
         for (field, idx) in [
             ("F", first_nonfinite_mat(&f.0)),

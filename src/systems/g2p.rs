@@ -9,6 +9,7 @@
 
 use crate::components::*;
 use crate::math::kernel::stencil;
+use crate::systems::{first_nonfinite_vec, FiniteWatch};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -46,10 +47,14 @@ pub fn g2p(
     mut bodies: Query<(&Body, &Position, &mut Velocity, &mut AffineVelocity)>,
 ) {
     for (body, x, mut v, mut c) in &mut bodies {
+        let watch = FiniteWatch::default();
         v.0.par_iter_mut()
             .zip(c.0.par_iter_mut().zip(x.0.par_iter()))
-            .for_each(|(v, (c, x))| (*v, *c) = gather(&grid, *x));
-        if let Some(i) = crate::systems::first_nonfinite_vec(&v.0) {
+            .for_each(|(v, (c, x))| {
+                (*v, *c) = gather(&grid, *x);
+                watch.check(v.is_finite());
+            });
+        if let Some(i) = watch.raised().then(|| first_nonfinite_vec(&v.0)).flatten() {
             health.report(Fault {
                 stage: "g2p",
                 field: "v",

@@ -218,6 +218,28 @@ pub fn build_stage_schedules(plan: &SubstepPlan) -> Vec<(&'static str, Schedule)
         .collect()
 }
 
+/// Raised by a forward stage's parallel loop when a value it wrote is not finite. The stage tests
+/// each value while it holds it and scans the field (to name the first bad particle or node, the
+/// same one for any thread count) only when the watch was raised, instead of reading the whole
+/// field again after every substep. The mirror of the backward pass's `NonFiniteSeen`.
+#[derive(Debug, Default)]
+pub struct FiniteWatch(std::sync::atomic::AtomicBool);
+
+impl FiniteWatch {
+    /// Raises the watch if `finite` is false.
+    #[inline(always)]
+    pub fn check(&self, finite: bool) {
+        if !finite {
+            self.0.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+
+    /// Whether any check failed.
+    pub fn raised(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
 /// Whether every value is finite: `Σ 0·x` is 0 when all are and NaN otherwise (`0·±∞` is NaN)
 /// and never overflows. Eight independent partial sums let the loop vectorise, so the common
 /// case costs one streaming pass.

@@ -170,11 +170,19 @@ pub fn p2g(
         );
     }
     let m_min = params.empty_node_mass;
+    let watch = crate::systems::FiniteWatch::default();
     g.velocity
         .par_iter_mut()
         .zip(g.mass.par_iter().zip(g.momentum.par_iter()))
-        .for_each(|(v, (&m, &p))| *v = if m > m_min { p / m } else { DVec3::ZERO });
-    if let Some(i) = crate::systems::first_nonfinite_vec(&g.velocity) {
+        .for_each(|(v, (&m, &p))| {
+            *v = if m > m_min { p / m } else { DVec3::ZERO };
+            watch.check(v.is_finite());
+        });
+    if let Some(i) = watch
+        .raised()
+        .then(|| crate::systems::first_nonfinite_vec(&g.velocity))
+        .flatten()
+    {
         health.report(Fault {
             stage: "p2g",
             field: "grid velocity",
