@@ -29,10 +29,10 @@ pub mod svd;
 pub mod tape;
 pub mod tool_move;
 
+use crate::systems::FiniteWatch;
 use crate::systems::{new_schedule, Stage, SubstepPlan};
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleLabel;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Raised by an adjoint stage that has just written a non-finite value into one of the particle
 /// fields the backward driver checks after it (`tape.rs`, `written_by`). The stages test the
@@ -40,22 +40,20 @@ use std::sync::atomic::{AtomicBool, Ordering};
 /// particle) only after a stage that raised it, instead of reading every field after every
 /// stage. Where the resource is absent (an adjoint system run alone), nothing is raised.
 #[derive(Resource, Debug, Default)]
-pub struct NonFiniteSeen(AtomicBool);
+pub struct NonFiniteSeen(FiniteWatch);
 
 impl NonFiniteSeen {
     /// Raises the flag if `finite` is false.
     #[inline(always)]
     pub fn check(seen: Option<&Self>, finite: bool) {
-        if !finite {
-            if let Some(s) = seen {
-                s.0.store(true, Ordering::Relaxed);
-            }
+        if let Some(s) = seen {
+            s.0.check(finite);
         }
     }
 
     /// Whether the flag was raised since the last call; lowers it.
     pub fn take(&self) -> bool {
-        self.0.swap(false, Ordering::Relaxed)
+        self.0.take()
     }
 }
 

@@ -6,7 +6,7 @@
 //! Reads `Velocity`; writes `Position`; reports non-finite positions to `Health`.
 
 use crate::components::*;
-use crate::systems::{first_nonfinite_vec, FiniteWatch};
+use crate::systems::FiniteWatch;
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -29,7 +29,7 @@ pub fn advect(
             *x = if finite { y.clamp(lo, hi) } else { y };
             watch.check(finite);
         });
-        if let Some(i) = watch.raised().then(|| first_nonfinite_vec(&x.0)).flatten() {
+        if let Some(i) = watch.first_nonfinite_vec(&x.0) {
             health.report(Fault {
                 stage: "advect",
                 field: "x",

@@ -9,7 +9,7 @@
 
 use crate::components::*;
 use crate::materials::Material;
-use crate::systems::{first_nonfinite_mat, FiniteWatch};
+use crate::systems::FiniteWatch;
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -77,12 +77,9 @@ pub fn constitutive_model<M: Material>(
                 .for_each(|((i, (fo, ao)), s)| update(i, &mut 0.0, Some(s), fo, ao)),
             (None, None) => fa.for_each(|(i, (fo, ao))| update(i, &mut 0.0, None, fo, ao)),
         }
-        if !watch.raised() {
-            continue;
-        }
         for (field, idx) in [
-            ("F", first_nonfinite_mat(&f.0)),
-            ("stress", first_nonfinite_mat(&aff.0)),
+            ("F", watch.first_nonfinite_mat(&f.0)),
+            ("stress", watch.first_nonfinite_mat(&aff.0)),
         ] {
             if let Some(i) = idx {
                 let value = if field == "F" { f.0[i] } else { aff.0[i] };

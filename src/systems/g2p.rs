@@ -9,7 +9,7 @@
 
 use crate::components::*;
 use crate::math::kernel::stencil;
-use crate::systems::{first_nonfinite_vec, FiniteWatch};
+use crate::systems::FiniteWatch;
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -54,7 +54,7 @@ pub fn g2p(
                 (*v, *c) = gather(&grid, *x);
                 watch.check(v.is_finite());
             });
-        if let Some(i) = watch.raised().then(|| first_nonfinite_vec(&v.0)).flatten() {
+        if let Some(i) = watch.first_nonfinite_vec(&v.0) {
             health.report(Fault {
                 stage: "g2p",
                 field: "v",

@@ -218,10 +218,11 @@ pub fn build_stage_schedules(plan: &SubstepPlan) -> Vec<(&'static str, Schedule)
         .collect()
 }
 
-/// Raised by a forward stage's parallel loop when a value it wrote is not finite. The stage tests
-/// each value while it holds it and scans the field (to name the first bad particle or node, the
+/// Raised by a stage's parallel loop when a value it wrote is not finite. The stage tests each
+/// value while it holds it and scans the field (to name the first bad particle or node, the
 /// same one for any thread count) only when the watch was raised, instead of reading the whole
-/// field again after every substep. The mirror of the backward pass's `NonFiniteSeen`.
+/// field again after every substep. The forward stages keep one per call; the backward pass
+/// shares one between its stages and driver (`crate::adjoint::NonFiniteSeen`).
 #[derive(Debug, Default)]
 pub struct FiniteWatch(std::sync::atomic::AtomicBool);
 
@@ -237,6 +238,21 @@ impl FiniteWatch {
     /// Whether any check failed.
     pub fn raised(&self) -> bool {
         self.0.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Whether any check failed since the last call; lowers the watch.
+    pub fn take(&self) -> bool {
+        self.0.swap(false, std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// [`first_nonfinite_vec`] of `xs` if the watch was raised, else `None` without a scan.
+    pub fn first_nonfinite_vec(&self, xs: &[DVec3]) -> Option<usize> {
+        self.raised().then(|| first_nonfinite_vec(xs)).flatten()
+    }
+
+    /// [`first_nonfinite_mat`] of `xs` if the watch was raised, else `None` without a scan.
+    pub fn first_nonfinite_mat(&self, xs: &[DMat3]) -> Option<usize> {
+        self.raised().then(|| first_nonfinite_mat(xs)).flatten()
     }
 }
 

@@ -178,11 +178,7 @@ pub fn p2g(
             *v = if m > m_min { p / m } else { DVec3::ZERO };
             watch.check(v.is_finite());
         });
-    if let Some(i) = watch
-        .raised()
-        .then(|| crate::systems::first_nonfinite_vec(&g.velocity))
-        .flatten()
-    {
+    if let Some(i) = watch.first_nonfinite_vec(&g.velocity) {
         health.report(Fault {
             stage: "p2g",
             field: "grid velocity",
