@@ -124,16 +124,23 @@ pub fn shape_mesh(shape: &Shape) -> Mesh {
             height,
             wall_thickness,
             floor_thickness,
+            fillet_radius,
         } => {
             let ri = outer_radius - wall_thickness;
-            revolve(&[
+            let k = crate::math::sdf::cup_fillet(wall_thickness, fillet_radius);
+            let mut profile = vec![
                 (0.0, 0.0),
                 (outer_radius, 0.0),
                 (outer_radius, height),
                 (ri, height),
-                (ri, floor_thickness),
-                (0.0, floor_thickness),
-            ])
+            ];
+            // The fillet, from the wall down to the floor.
+            profile.extend((0..=8).map(|j| {
+                let t = -FRAC_PI_2 * j as f64 / 8.0;
+                (ri - k + k * t.cos(), floor_thickness + k + k * t.sin())
+            }));
+            profile.push((0.0, floor_thickness));
+            revolve(&profile)
         }
         Shape::Spoon {
             bowl_radius,
@@ -172,6 +179,7 @@ mod tests {
                 height: 0.05,
                 wall_thickness: 0.002,
                 floor_thickness: 0.003,
+                fillet_radius: None,
             },
             Shape::Box {
                 half_extents: [0.05, 0.01, 0.05],

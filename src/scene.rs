@@ -797,6 +797,7 @@ fn validate_shape(s: &Shape) -> Result<(), FieldError> {
             height,
             wall_thickness,
             floor_thickness,
+            fillet_radius,
         } => {
             p("outer_radius", outer_radius)?;
             p("height", height)?;
@@ -814,6 +815,17 @@ fn validate_shape(s: &Shape) -> Result<(), FieldError> {
                     "floor_thickness",
                     floor_thickness.to_string(),
                     format!("< height {height} m"),
+                ));
+            }
+            let k = crate::math::sdf::cup_fillet(wall_thickness, fillet_radius);
+            let room = (outer_radius - wall_thickness).min(height - floor_thickness);
+            if !(k >= 0.0 && k < room) {
+                return Err(FieldError::new(
+                    "fillet_radius",
+                    format!("{k}"),
+                    format!(
+                        "≥ 0 m and < {room} m (the cavity's radius and depth); leave it out for the wall thickness, or 0 for a sharp edge"
+                    ),
                 ));
             }
         }

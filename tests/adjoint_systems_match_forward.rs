@@ -453,6 +453,7 @@ fn collider_world(rng: &mut Rng, soft_band: bool) -> (World, Entity, Entity) {
                 height: 0.06,
                 wall_thickness: 0.002,
                 floor_thickness: 0.003,
+                fillet_radius: None,
             },
             friction: 0.4,
             contact: ContactMode::Slip,

@@ -132,6 +132,21 @@ fn cup_wall_thicker_than_the_cup() {
 }
 
 #[test]
+fn cup_fillet_wider_than_the_cavity() {
+    let msg = error_of(&GOOD.replace(
+        "wall_thickness: 0.004",
+        "wall_thickness: 0.004, fillet_radius: Some(0.5)",
+    ));
+    assert!(
+        msg.contains("colliders[0].shape.fillet_radius")
+            && msg.contains("= 0.5")
+            && msg.contains("leave it out")
+            && msg.contains("scenes/bad.ron:7:"),
+        "{msg}"
+    );
+}
+
+#[test]
 fn unstable_time_step_under_strict() {
     let msg = error_of(&GOOD.replace(
         "steps: Some(1)",

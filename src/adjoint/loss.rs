@@ -51,6 +51,7 @@ impl CupRegion {
                 height,
                 wall_thickness,
                 floor_thickness,
+                ..
             } => Some(CupRegion {
                 pose,
                 inner_radius: outer_radius - wall_thickness,

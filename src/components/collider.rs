@@ -182,6 +182,7 @@ mod tests {
             height: 0.05,
             wall_thickness: 0.002,
             floor_thickness: 0.003,
+            fillet_radius: None,
         };
         let c = Collider {
             name: "cup".into(),

@@ -22,11 +22,15 @@ pub enum Shape {
     /// Capped cylinder along local y, centred at the origin.
     Cylinder { radius: f64, half_height: f64 },
     /// Hollow cylinder with a floor; origin at the centre of the bottom face, open at `y = height`.
+    /// The cavity's bottom edge is rounded with radius `fillet_radius` (default: the wall
+    /// thickness; see [`cup_sdf`] for why a cup needs one).
     Cup {
         outer_radius: f64,
         height: f64,
         wall_thickness: f64,
         floor_thickness: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        fillet_radius: Option<f64>,
     },
     /// Spherical-cap bowl shell plus a capsule handle. Origin at the sphere centre; the bowl
     /// opens towards +y and reaches `bowl_depth` up from its lowest point at `y = -bowl_radius`;
@@ -187,22 +191,97 @@ pub fn sd_cut_hollow_sphere(p: DVec3, r: f64, h: f64, t: f64) -> (f64, DVec3) {
     (d - t, radial * g_rho + DVec3::new(0.0, g_y, 0.0))
 }
 
-/// A cup's cavity, the cylinder cut out of its solid one, as `(centre y, radius, half height)`
-/// in the cup's frame. It reaches from the floor to one outer radius above the rim, so the cup
-/// is open at the top.
+/// The radius of a cup's fillet: the one given, or the wall thickness.
 #[inline(always)]
-pub fn cup_cavity(
+pub fn cup_fillet(wall_thickness: f64, fillet_radius: Option<f64>) -> f64 {
+    fillet_radius.unwrap_or(wall_thickness)
+}
+
+/// A cup's SDF: the cup is the solid cylinder of radius `R` and height `H` less an open
+/// cylindrical cavity of radius `r = R − wall` above the floor `y = f`, and the cavity's bottom
+/// edge is rounded with radius `k`. With `a = r − ρ` (distance to the inner wall), `b = y − f`
+/// (height above the floor) and `c = y − H` (height above the rim):
+///
+/// - above the cavity (`a > 0`, `c > 0`) the nearest point is the rim's inner edge, `φ = √(a² + c²)`;
+/// - in the cavity's corner (`a < k`, `b < k`) the nearest point is on the fillet, a quarter
+///   circle of radius `k` about `(a, b) = (k, k)`: `ψ = k − √((k − a)² + (k − b)²)`;
+/// - elsewhere in the cavity `ψ = min(a, b)`, and the cup is `max(outer cylinder, ψ)`.
+///
+/// Why: without the fillet and the rim edge the cup is `max(outer, −cavity)`, whose normal
+/// jumps between the wall's and the floor's on the corner's bisector (and between the rim's
+/// top and the wall's above the rim). A particle resting in the corner was projected against
+/// the wall in one substep and the floor in the next, a chatter whose phase the last bit of
+/// the state decided: two rollouts 1e-7 apart in Θ parted by a whole particle velocity. With
+/// both, the normal is continuous wherever `φ < k` outside the solid (farther out, the corner's
+/// bisector is the cavity's medial axis, a crease of any distance field, and beyond the reach
+/// of particle contact).
+#[inline]
+pub fn cup_sdf(
+    p: DVec3,
     outer_radius: f64,
     height: f64,
-    wall_thickness: f64,
-    floor_thickness: f64,
-) -> (f64, f64, f64) {
-    let top = height + outer_radius;
-    (
-        0.5 * (floor_thickness + top),
-        outer_radius - wall_thickness,
-        0.5 * (top - floor_thickness),
-    )
+    wall: f64,
+    floor: f64,
+    k: f64,
+) -> (f64, DVec3) {
+    let rho = (p.x * p.x + p.z * p.z).sqrt();
+    let radial = if rho > 0.0 {
+        DVec3::new(p.x / rho, 0.0, p.z / rho)
+    } else {
+        DVec3::X
+    };
+    let (a, b, c) = (outer_radius - wall - rho, p.y - floor, p.y - height);
+    if a > 0.0 && c > 0.0 {
+        let l = a.hypot(c);
+        return (l, (DVec3::Y * c - radial * a) / l);
+    }
+    let cavity = if a < k && b < k {
+        let (u, v) = (k - a, k - b);
+        let l = u.hypot(v);
+        (k - l, (DVec3::Y * v - radial * u) / l)
+    } else if a <= b {
+        (a, -radial)
+    } else {
+        (b, DVec3::Y)
+    };
+    let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
+    if outer.0 >= cavity.0 {
+        outer
+    } else {
+        cavity
+    }
+}
+
+/// Hessian of [`cup_sdf`], branch by branch.
+pub fn cup_hessian(
+    p: DVec3,
+    outer_radius: f64,
+    height: f64,
+    wall: f64,
+    floor: f64,
+    k: f64,
+) -> DMat3 {
+    let rho = (p.x * p.x + p.z * p.z).sqrt();
+    let r = outer_radius - wall;
+    let (a, b, c) = (r - rho, p.y - floor, p.y - height);
+    if a > 0.0 && c > 0.0 {
+        return circle_distance_hessian(p, r, height);
+    }
+    let (phi, _) = cup_sdf(p, outer_radius, height, wall, floor, k);
+    let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
+    if outer.0 >= phi {
+        return cylinder_hessian(p, 0.5 * height, outer_radius, 0.5 * height);
+    }
+    if a < k && b < k {
+        // ψ = k − distance to the fillet's centre circle (radius r − k at height f + k).
+        circle_distance_hessian(p, r - k, floor + k) * -1.0
+    } else if a <= b && rho > 0.0 {
+        // ψ = r − ρ: −θ̂θ̂ᵀ/ρ.
+        let theta = DVec3::new(-p.z / rho, 0.0, p.x / rho);
+        DMat3::from_cols(theta * theta.x, theta * theta.y, theta * theta.z) * (-1.0 / rho)
+    } else {
+        DMat3::ZERO
+    }
 }
 
 /// A spoon's rim and handle, in the spoon's frame: the height `h = bowl_depth − r` of the cut
@@ -248,16 +327,15 @@ impl Shape {
                 height,
                 wall_thickness,
                 floor_thickness,
-            } => {
-                let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
-                let (cy, r, hh) = cup_cavity(outer_radius, height, wall_thickness, floor_thickness);
-                let inner = sd_cylinder_y(p, cy, r, hh);
-                if outer.0 >= -inner.0 {
-                    outer
-                } else {
-                    (-inner.0, -inner.1)
-                }
-            }
+                fillet_radius,
+            } => cup_sdf(
+                p,
+                outer_radius,
+                height,
+                wall_thickness,
+                floor_thickness,
+                cup_fillet(wall_thickness, fillet_radius),
+            ),
             Shape::Spoon {
                 bowl_radius,
                 bowl_depth,
@@ -291,14 +369,17 @@ impl Shape {
         match *self {
             Shape::Cup {
                 outer_radius,
-                height,
                 wall_thickness,
                 floor_thickness,
+                fillet_radius,
+                ..
             } => {
-                let s = s + CLEAR_SLACK;
-                let (cy, r, hh) = cup_cavity(outer_radius, height, wall_thickness, floor_thickness);
-                let r = r - s;
-                r > 0.0 && hh - (p.y - cy).abs() > s && p.x * p.x + p.z * p.z < r * r
+                // In the cavity φ ≥ min(a, b) − (√2 − 1)·k (the fillet cuts at most that much
+                // off the corner), and above it φ ≥ a.
+                let k = cup_fillet(wall_thickness, fillet_radius);
+                let s = s + CLEAR_SLACK + (std::f64::consts::SQRT_2 - 1.0) * k;
+                let r = outer_radius - wall_thickness - s;
+                r > 0.0 && p.y - floor_thickness > s && p.x * p.x + p.z * p.z < r * r
             }
             Shape::Spoon {
                 bowl_radius,
@@ -375,21 +456,15 @@ impl Shape {
                 height,
                 wall_thickness,
                 floor_thickness,
-            } => {
-                let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
-                let (cy, r, hh) = cup_cavity(outer_radius, height, wall_thickness, floor_thickness);
-                let inner = sd_cylinder_y(p, cy, r, hh);
-                if outer.0 >= -inner.0 {
-                    Some(cylinder_hessian(
-                        p,
-                        0.5 * height,
-                        outer_radius,
-                        0.5 * height,
-                    ))
-                } else {
-                    Some(cylinder_hessian(p, cy, r, hh) * -1.0)
-                }
-            }
+                fillet_radius,
+            } => Some(cup_hessian(
+                p,
+                outer_radius,
+                height,
+                wall_thickness,
+                floor_thickness,
+                cup_fillet(wall_thickness, fillet_radius),
+            )),
             Shape::Spoon {
                 bowl_radius,
                 bowl_depth,
@@ -506,6 +581,7 @@ mod tests {
                 height: 0.06,
                 wall_thickness: 0.002,
                 floor_thickness: 0.003,
+                fillet_radius: Some(0.004),
             },
             Shape::Spoon {
                 bowl_radius: 0.02,
@@ -617,6 +693,89 @@ mod tests {
         assert!(spoon.sdf(DVec3::new(0.0, -0.015, 0.0)).0 > 0.0);
         // Above the cut plane the sphere is open.
         assert!(spoon.sdf(DVec3::new(0.0, 0.019, 0.0)).0 > 0.0);
+    }
+
+    /// The cup's normal is continuous outside its solid: across the bisector of the cavity's
+    /// bottom corner and of the rim's inner edge, where a sharp-edged cup switches between two
+    /// faces' normals, and its gradient and Hessian match central differences in the fillet and
+    /// above the rim (where random points around the whole cup seldom fall).
+    #[test]
+    fn cup_normal_is_continuous_at_its_corner_and_rim() {
+        let (outer, height, wall, floor, k) = (0.04, 0.06, 0.002, 0.003, 0.004);
+        let cup = Shape::Cup {
+            outer_radius: outer,
+            height,
+            wall_thickness: wall,
+            floor_thickness: floor,
+            fillet_radius: Some(k),
+        };
+        let r = outer - wall;
+        // Bisectors: points (ρ, y) = (r − t, floor + t) and (r − t, height + t), in a direction
+        // round the axis, nudged by ±1e-9 m across the bisector. In the corner that is a crease
+        // of every distance field from the fillet's centre on (t ≥ k, φ ≥ k: the medial axis
+        // of the cavity), beyond any contact band; above the rim it is none.
+        let mut seed = 17u64;
+        for j in 1..400 {
+            let t = 3.0 * k * j as f64 / 400.0;
+            let az = std::f64::consts::PI * lcg(&mut seed);
+            let at = |rho: f64, y: f64| DVec3::new(rho * az.cos(), y, rho * az.sin());
+            for y0 in [floor, height] {
+                if y0 == floor && t >= k {
+                    continue;
+                }
+                let (_, n0) = cup.sdf(at(r - t - 1e-9, y0 + t + 1e-9));
+                let (_, n1) = cup.sdf(at(r - t + 1e-9, y0 + t - 1e-9));
+                assert!(
+                    (n0 - n1).length() < 1e-6,
+                    "y0 {y0}, t {t}: {n0:?} vs {n1:?}"
+                );
+            }
+        }
+        // A particle 0.25 mm off the fillet feels the fillet's normal, between the two faces'.
+        let (phi, n) = cup.sdf(DVec3::new(r - 0.5 * k, floor + 0.5 * k, 0.0));
+        assert!(phi < 0.5 * k && n.x < -0.1 && n.y > 0.1, "{phi} {n:?}");
+        // Central differences near the corner and the rim.
+        let mut checked = 0;
+        for _ in 0..4000 {
+            let y0 = if lcg(&mut seed) < 0.0 { floor } else { height };
+            let p = DVec3::new(
+                r + 2.0 * k * lcg(&mut seed),
+                y0 + 2.0 * k * lcg(&mut seed),
+                2.0 * k * lcg(&mut seed),
+            );
+            let (_, g) = cup.sdf(p);
+            let hess = cup.sdf_hessian(p).expect("the cup has a Hessian");
+            let smooth = [DVec3::X, DVec3::Y, DVec3::Z].iter().all(|&a| {
+                (1..=3).all(|m| {
+                    let e = 1e-5 * m as f64;
+                    (cup.sdf(p + a * e).1 - g).length() < 1e-3
+                        && (cup.sdf(p - a * e).1 - g).length() < 1e-3
+                        && max_abs(cup.sdf_hessian(p + a * e).unwrap() - hess)
+                            < 0.1 * (1.0 + max_abs(hess))
+                })
+            });
+            if !smooth {
+                continue;
+            }
+            checked += 1;
+            for (m, a) in [DVec3::X, DVec3::Y, DVec3::Z].iter().enumerate() {
+                let fd = (cup.sdf(p + *a * H).0 - cup.sdf(p - *a * H).0) / (2.0 * H);
+                assert!((fd - g[m]).abs() < GRAD_TOL, "{p:?}: {g:?}, d/d{m} {fd}");
+                let fdn = (cup.sdf(p + *a * H).1 - cup.sdf(p - *a * H).1) / (2.0 * H);
+                let col = hess.col(m);
+                let scale = col
+                    .abs()
+                    .max_element()
+                    .max(fdn.abs().max_element())
+                    .max(1.0);
+                assert!(
+                    (fdn - col).abs().max_element() <= 1e-5 * scale,
+                    "{p:?}: column {m} {col:?} vs {fdn:?}"
+                );
+            }
+            assert!((g.length() - 1.0).abs() < 1e-12);
+        }
+        assert!(checked > 2000, "only {checked} smooth samples");
     }
 
     /// `surely_clear(p, s)` claims `φ(p) > s` only where the SDF agrees, and it does claim it
