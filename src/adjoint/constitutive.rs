@@ -22,7 +22,7 @@ use rayon::prelude::*;
 
 /// Particles per chunk of the material-gradient reduction, each chunk one rayon task; fixed so
 /// the sum order does not depend on the thread count. Small enough that the default scene's
-/// 3,784 particles make 15 tasks. With chunks of 1,024 they made 4, and this stage took as
+/// 3,773 particles make 15 tasks. With chunks of 1,024 they made 4, and this stage took as
 /// long on two threads as on one (1.59 s against 1.57 s in `bench scenes/powder_transport.ron
 /// --backward --stages`); why the 4 did not split over the two threads was not measured.
 const REDUCE_CHUNK: usize = 256;

@@ -33,7 +33,7 @@ pub struct ColliderAdj {
 }
 
 /// Nodes or particles per chunk of the collider-gradient reduction (fixed, so the sum order is
-/// too). Small enough that the default scene's 3,784 particles make several chunks: a single
+/// too). Small enough that the default scene's 3,773 particles make several chunks: a single
 /// chunk ran the particle-collision adjoint on one thread.
 pub(crate) const REDUCE_CHUNK: usize = 512;
 
