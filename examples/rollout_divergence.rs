@@ -7,28 +7,51 @@
 //! sharp bottom corner of a cup; see the README, "Gradients").
 //!
 //! ```sh
-//! cargo run --release --example rollout_divergence -- SCENE [EPS] [DIRECTION]
+//! cargo run --release --example rollout_divergence -- SCENE [EPS] [DIRECTION] [DX_M]
 //! ```
 //!
 //! `EPS` defaults to 1e-7; `DIRECTION` is 0–4 for one skill parameter, anything else (the
-//! default) for `u = (1, …, 1)/√5`.
+//! default) for `u = (1, …, 1)/√5`; `DX_M` re-grids the scene as `powderlab study
+//! error-vs-time` does.
+//!
+//! Besides the ratio over the whole body, each step prints the largest ratio of one particle to
+//! its own displacement (`local`): a switch shows there as O(1) in the particle that switched,
+//! even where that particle moves much less than the fastest one. The first step where it
+//! passes `SWITCH` is reported with that particle's distance to every collider.
 
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
-use powderlab::study::along;
+use powderlab::study::{along, transport_at, transport_scene};
 
 /// `max|Δ₂ − 2Δ₁| / max|Δ₁|` above which a step counts as non-linear in ε: a smooth trajectory
 /// gives O(ε·curvature), about 1e-4 at ε = 1e-7 on the default scene, and a switch O(1).
 const NONLINEAR: f64 = 1e-2;
 
+/// A particle's `|Δ₂ − 2Δ₁| / (|Δ₁| + LOCAL_FLOOR·max|Δ₁|)` above which it counts as switched:
+/// a smooth path gives the ratio above for every particle, a switch about 1 in its own.
+const SWITCH: f64 = 0.3;
+
+/// Keeps particles that barely move (`|Δ₁|` near round-off) from dividing by nearly nothing.
+const LOCAL_FLOOR: f64 = 1e-3;
+
+/// A particle's `|Δ₂ − 2Δ₁|` (m) below which it is round-off, not a switch: positions near 0.1 m
+/// carry 1.4e-17 m per rounding, and one step's thousands of operations leave second differences
+/// of 1e-16 to 1e-15 m where nothing switches (the first steps of the default scene at ε = 1e-9).
+const ROUND_OFF: f64 = 1e-13;
+
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let Some(path) = args.get(1) else {
-        anyhow::bail!("usage: rollout_divergence SCENE [EPS] [DIRECTION]");
+        anyhow::bail!("usage: rollout_divergence SCENE [EPS] [DIRECTION] [DX_M]");
     };
     let eps: f64 = args.get(2).map_or(Ok(1e-7), |s| s.parse())?;
     let dir: usize = args.get(3).map_or(Ok(usize::MAX), |s| s.parse())?;
-    let p = Problem::new(Scene::load(path)?, 0)?;
+    let base = Scene::load(path)?;
+    let scene = match args.get(4) {
+        Some(dx) => transport_scene(&transport_at(&base, dx.parse()?, true, None))?,
+        None => base,
+    };
+    let p = Problem::new(scene, 0)?;
     let t0 = p.scene_theta();
     let u: [f64; 5] = if dir < 5 {
         let mut u = [0.0; 5];
@@ -49,10 +72,11 @@ fn main() -> anyhow::Result<()> {
     let steps = *horizons.iter().min().expect("three rollouts");
     println!("Θ = {t0:?}, ε = {eps:e}, u = {u:?}, {steps} steps");
     println!(
-        "{:>5} {:>12} {:>14} {:>10} {:>9}",
-        "step", "max|Δ1|", "max|Δ2-2Δ1|", "ratio", "particle"
+        "{:>5} {:>12} {:>14} {:>10} {:>9} {:>10} {:>9}",
+        "step", "max|Δ1|", "max|Δ2-2Δ1|", "ratio", "particle", "local", "particle"
     );
     let (mut first, mut worst_ratio) = (None, 0.0f64);
+    let mut first_switch = None;
     for s in 0..steps {
         for sim in sims.iter_mut() {
             sim.step()?;
@@ -72,20 +96,53 @@ fn main() -> anyhow::Result<()> {
         }
         let ratio = if d1max > 0.0 { nl / d1max } else { 0.0 };
         worst_ratio = worst_ratio.max(ratio);
+        let (mut local, mut local_at) = (0.0f64, (0, 0));
+        if d1max > 0.0 {
+            for (b, s0) in st[0].iter().enumerate() {
+                let (x0, x1, x2) = (&s0.x, &st[1][b].x, &st[2][b].x);
+                for j in 0..x0.len() {
+                    let d1 = x1[j] - x0[j];
+                    let n = ((x2[j] - x0[j]) - 2.0 * d1).length();
+                    let r = n / (d1.length() + LOCAL_FLOOR * d1max);
+                    if n > ROUND_OFF && r > local {
+                        (local, local_at) = (r, (b, j));
+                    }
+                }
+            }
+        }
         println!(
-            "{s:5} {d1max:12.3e} {nl:14.3e} {ratio:10.2e} {:>4}/{}",
-            worst.0, worst.1
+            "{s:5} {d1max:12.3e} {nl:14.3e} {ratio:10.2e} {:>4}/{} {local:10.2e} {:>4}/{}",
+            worst.0, worst.1, local_at.0, local_at.1
         );
+        if local > SWITCH && first_switch.is_none() {
+            let x = st[0][local_at.0].x[local_at.1];
+            first_switch = Some((s, local_at, x, local, distances(&mut sims[0], x)));
+        }
         if ratio > NONLINEAR && first.is_none() {
             let x = st[0][worst.0].x[worst.1];
-            first = Some((s, worst, x));
+            first = Some((s, worst, x, distances(&mut sims[0], x)));
         }
     }
     match first {
-        Some((s, (b, j), x)) => println!(
-            "first non-linear step: {s} (body {b}, particle {j} at {x:?} in rollout 0); largest ratio {worst_ratio:.2e}"
+        Some((s, (b, j), x, near)) => println!(
+            "first non-linear step: {s} (body {b}, particle {j} at {x:?} in rollout 0; {near}); largest ratio {worst_ratio:.2e}"
         ),
         None => println!("linear in ε over the whole horizon (largest ratio {worst_ratio:.2e} ≤ {NONLINEAR:e})"),
     }
+    match first_switch {
+        Some((s, (b, j), x, r, near)) => println!(
+            "first particle to switch: step {s}, body {b}, particle {j} at {x:?} in rollout 0 (local ratio {r:.2e}; {near})"
+        ),
+        None => println!("no particle's local ratio passes {SWITCH}"),
+    }
     Ok(())
+}
+
+/// The signed distance from `x` to every collider of `sim` at its current pose, as text.
+fn distances(sim: &mut powderlab::sim::Simulation, x: glam::DVec3) -> String {
+    sim.collider_poses()
+        .into_iter()
+        .map(|(name, _, shape, pose)| format!("{name} {:+.3e} m", shape.sdf(pose.to_local(x)).0))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
