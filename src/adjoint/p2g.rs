@@ -3,13 +3,15 @@
 //! particle at a time, so deterministic for any thread count):
 //!
 //! ```text
-//! p̄_i = v̄_i/m_i,   m̄_i = −v̄_i·p_i/m_i²                      (non-empty nodes; 0 otherwise)
+//! p̄_i = v̄_i/m_i,   m̄_i = −v̄_i·v_i/m_i                       (non-empty nodes; 0 otherwise)
 //! v̄_p += Σ_i w_ip·m·p̄_i
 //! Ā_p += Σ_i w_ip·p̄_i·d_ipᵀ
 //! x̄_p += Σ_i ∇w_ip·[(m·v_p + A_p·d_ip)·p̄_i + m·m̄_i] − w_ip·A_pᵀ·p̄_i
 //! ```
 //!
-//! Exact except at the empty-node threshold `m_i = m_min` (a kink: one-sided). Reads the
+//! Exact, except where a positive empty-node threshold is crossed: there the forward jumps (the
+//! node's velocity drops from `p/m` to 0), which no adjoint sees. At the default threshold, 0,
+//! a node's mass and its weight in every gather vanish together, and nothing jumps. Reads the
 //! substep-start `x`, `v`; consumes the grid's `v̄` (zeroes it); accumulates `v̄`, `Ā`, `x̄`.
 
 use crate::adjoint::NonFiniteSeen;
@@ -52,7 +54,9 @@ pub fn p2g_adjoint(
         .zip(grid.mass.par_iter().zip(grid.momentum.par_iter()))
         .for_each(|(((gp, gm), gv), (&m, &p))| {
             (*gp, *gm) = if m > m_min {
-                (*gv / m, -gv.dot(p) / (m * m))
+                // `−v̄·v/m`, not `−v̄·p/m²`: a node touched only by stencil tails can weigh
+                // 1e-90 kg, whose square underflows.
+                (*gv / m, -gv.dot(p / m) / m)
             } else {
                 (DVec3::ZERO, 0.0)
             };
