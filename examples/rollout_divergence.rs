@@ -77,11 +77,15 @@ fn main() -> anyhow::Result<()> {
     );
     let (mut first, mut worst_ratio) = (None, 0.0f64);
     let mut first_switch = None;
+    let mut parts: Vec<((usize, usize), f64, f64)> = Vec::new();
     for s in 0..steps {
         for sim in sims.iter_mut() {
             sim.step()?;
         }
         let st: Vec<_> = sims.iter_mut().map(|s| s.body_states()).collect();
+        // One pass for every particle's |Δ₁| and |Δ₂ − 2Δ₁|; the local ratios need max|Δ₁|
+        // first, so they are read from `parts` afterwards.
+        parts.clear();
         let (mut d1max, mut nl, mut worst) = (0.0f64, 0.0f64, (0, 0));
         for (b, s0) in st[0].iter().enumerate() {
             let (x0, x1, x2) = (&s0.x, &st[1][b].x, &st[2][b].x);
@@ -92,21 +96,17 @@ fn main() -> anyhow::Result<()> {
                 if n > nl {
                     (nl, worst) = (n, (b, j));
                 }
+                parts.push(((b, j), d1.length(), n));
             }
         }
         let ratio = if d1max > 0.0 { nl / d1max } else { 0.0 };
         worst_ratio = worst_ratio.max(ratio);
         let (mut local, mut local_at) = (0.0f64, (0, 0));
         if d1max > 0.0 {
-            for (b, s0) in st[0].iter().enumerate() {
-                let (x0, x1, x2) = (&s0.x, &st[1][b].x, &st[2][b].x);
-                for j in 0..x0.len() {
-                    let d1 = x1[j] - x0[j];
-                    let n = ((x2[j] - x0[j]) - 2.0 * d1).length();
-                    let r = n / (d1.length() + LOCAL_FLOOR * d1max);
-                    if n > ROUND_OFF && r > local {
-                        (local, local_at) = (r, (b, j));
-                    }
+            for &(at, d1, n) in &parts {
+                let r = n / (d1 + LOCAL_FLOOR * d1max);
+                if n > ROUND_OFF && r > local {
+                    (local, local_at) = (r, at);
                 }
             }
         }
