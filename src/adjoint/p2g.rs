@@ -54,8 +54,9 @@ pub fn p2g_adjoint(
         .zip(grid.mass.par_iter().zip(grid.momentum.par_iter()))
         .for_each(|(((gp, gm), gv), (&m, &p))| {
             (*gp, *gm) = if m > m_min {
-                // `−v̄·v/m`, not `−v̄·p/m²`: a node touched only by stencil tails can weigh
-                // 1e-90 kg, whose square underflows.
+                // `−v̄·v/m`, not `−v̄·p/m²`: a node touched only by stencil tails weighs
+                // m_p·(δ²/2)³ with δ down to round-off (an estimate, about 1e-90 kg on the
+                // default scene), and a mass that small squared underflows.
                 (*gv / m, -gv.dot(p / m) / m)
             } else {
                 (DVec3::ZERO, 0.0)
