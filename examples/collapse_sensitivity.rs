@@ -5,18 +5,19 @@
 //! potential energy.
 //!
 //! `cargo run --release --example collapse_sensitivity -- PHI_DEG [FLOOR_MU=0.577] [CELLS=20]
-//! [A,A,...=0.5,1,1.5] [CFL=0.5] [ROOM=2]`
+//! [A,A,...=0.5,1,1.5] [CFL=0.5] [ROOM=2] [STIFFNESS=100]`
 //!
 //! The CFL number sets the substeps per step (smaller, more substeps) at a fixed grid; ROOM is the
 //! domain's length ahead of the column over the law's front (raise it for a slippery floor, whose
-//! run-out would otherwise reach the far wall).
+//! run-out would otherwise reach the far wall). STIFFNESS is E/(ρ·g·H₀), held fixed across the
+//! aspect ratios as the validation does.
 
 use powderlab::validate::{loglog_slope, lube_runout, run_collapse, Collapse};
 
 fn usage() -> ! {
     eprintln!(
         "usage: collapse_sensitivity PHI_DEG [FLOOR_MU=0.577] [CELLS=20] [A,A,...=0.5,1,1.5] \
-         [CFL=0.5] [ROOM=2]"
+         [CFL=0.5] [ROOM=2] [STIFFNESS=100]"
     );
     std::process::exit(2)
 }
@@ -44,6 +45,7 @@ fn main() -> anyhow::Result<()> {
     };
     let cfl: f64 = arg(5, 0.5);
     let room: f64 = arg(6, 2.0);
+    let stiffness: f64 = arg(7, 100.0);
     let mut pts = Vec::new();
     for &a in &aspects {
         let mut c = Collapse::new(a, cells);
@@ -51,10 +53,11 @@ fn main() -> anyhow::Result<()> {
         c.floor_friction = mu;
         c.cfl = cfl;
         c.room = room;
+        c.stiffness_ratio = stiffness;
         let r = run_collapse(&c, None, |_| {})?;
         let fmt = |t: Option<f64>| t.map_or("> 6".to_string(), |t| format!("{t:.2}"));
         println!(
-            "phi {phi} floor {mu} cells {cells} cfl {cfl} a {a}: run-out {:.3} (law {:.3}, ratio {:.2}), \
+            "phi {phi} floor {mu} cells {cells} cfl {cfl} E/(rho g H0) {stiffness} a {a}: run-out {:.3} (law {:.3}, ratio {:.2}), \
              front arrest {} T_c, kinetic energy < 1e-6 at {} T_c (else cut off at 6 T_c), \
              {} particles, {} substeps per step, {:.1} s",
             r.runout_ratio,
@@ -71,7 +74,7 @@ fn main() -> anyhow::Result<()> {
     }
     if pts.len() >= 2 {
         println!(
-            "phi {phi} floor {mu} cells {cells} cfl {cfl}: log-log slope {:.3}",
+            "phi {phi} floor {mu} cells {cells} cfl {cfl} E/(rho g H0) {stiffness}: log-log slope {:.3}",
             loglog_slope(&pts)
         );
     }
