@@ -3,11 +3,14 @@
 //! contact switch inside ±ε (a jump of the loss) takes over the difference.
 //!
 //! ```sh
-//! cargo run --release --example fd_eps_sweep -- SCENE [DX_M]
+//! cargo run --release --example fd_eps_sweep -- SCENE [DX_M|-] [THETA] [grad]
 //! ```
 //!
 //! `DX_M` re-grids the scene as `powderlab study error-vs-time` does (every length in metres
-//! kept, substeps scaled as 1/dx).
+//! kept, substeps scaled as 1/dx); `-` keeps the scene's grid. `THETA` (five comma-separated
+//! values) replaces the scene's Θ, and `grad` sweeps along the adjoint gradient's own direction
+//! `u = ∂L/∂Θ / ‖∂L/∂Θ‖` instead: where a rollout returns an unusually large gradient, this says
+//! whether the loss really is that steep there.
 
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
@@ -17,18 +20,33 @@ use rayon::prelude::*;
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let Some(path) = args.get(1) else {
-        anyhow::bail!("usage: fd_eps_sweep SCENE [DX_M]");
+        anyhow::bail!("usage: fd_eps_sweep SCENE [DX_M|-] [THETA] [grad]");
     };
     let base = Scene::load(path)?;
-    let scene = match args.get(2) {
+    let scene = match args.get(2).map(String::as_str) {
+        Some("-") | None => base,
         Some(dx) => transport_scene(&transport_at(&base, dx.parse()?, true, None))?,
-        None => base,
     };
     let p = Problem::new(scene, 2048 << 20)?;
-    let t0 = p.scene_theta();
-    let u = [1.0 / 5f64.sqrt(); 5];
+    let t0 = match args.get(3) {
+        None => p.scene_theta(),
+        Some(t) => {
+            let v: Vec<f64> = t.split(',').map(str::parse).collect::<Result<_, _>>()?;
+            anyhow::ensure!(v.len() == 5, "THETA takes five values, got {}", v.len());
+            std::array::from_fn(|i| v[i])
+        }
+    };
     let o = p.evaluate(t0, true, false)?;
     let g = o.grad.expect("asked for the gradient");
+    let norm = g.iter().map(|g| g * g).sum::<f64>().sqrt();
+    let u: [f64; 5] = match args.get(4).map(String::as_str) {
+        None => [1.0 / 5f64.sqrt(); 5],
+        Some("grad") if norm > 0.0 => std::array::from_fn(|i| g[i] / norm),
+        Some(other) => {
+            anyhow::bail!("the fifth argument is `grad` (got {other}, or a zero gradient)")
+        }
+    };
+    println!("Θ = {t0:?}, ∂L/∂Θ = {g:?} (norm {norm:.6e}), u = {u:?}");
     let adj: f64 = g.iter().zip(&u).map(|(g, u)| g * u).sum();
     println!("L = {:.12}, adjoint ∂L/∂Θ·u = {adj:.6e}", o.loss);
     println!(

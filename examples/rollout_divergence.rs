@@ -12,7 +12,8 @@
 //!
 //! `EPS` defaults to 1e-7; `DIRECTION` is 0–4 for one skill parameter, anything else (the
 //! default) for `u = (1, …, 1)/√5`; `DX_M` re-grids the scene as `powderlab study
-//! error-vs-time` does.
+//! error-vs-time` does (`-` keeps its grid). With `TRACK=J` in the environment, every step also
+//! prints particle `J` of the first body: its `|Δ₁|/ε` and its distance to every collider.
 //!
 //! Besides the ratio over the whole body, each step prints the largest ratio of one particle to
 //! its own displacement (`local`): a switch shows there as O(1) in the particle that switched,
@@ -47,10 +48,11 @@ fn main() -> anyhow::Result<()> {
     let eps: f64 = args.get(2).map_or(Ok(1e-7), |s| s.parse())?;
     let dir: usize = args.get(3).map_or(Ok(usize::MAX), |s| s.parse())?;
     let base = Scene::load(path)?;
-    let scene = match args.get(4) {
+    let scene = match args.get(4).map(String::as_str) {
+        Some("-") | None => base,
         Some(dx) => transport_scene(&transport_at(&base, dx.parse()?, true, None))?,
-        None => base,
     };
+    let track: Option<usize> = std::env::var("TRACK").ok().map(|s| s.parse()).transpose()?;
     let p = Problem::new(scene, 0)?;
     let t0 = p.scene_theta();
     let u: [f64; 5] = if dir < 5 {
@@ -78,6 +80,9 @@ fn main() -> anyhow::Result<()> {
     let (mut first, mut worst_ratio) = (None, 0.0f64);
     let mut first_switch = None;
     let mut parts: Vec<((usize, usize), f64, f64)> = Vec::new();
+    // The particle that moves most between rollouts 0 and 1 at the last step: what dominates
+    // the gradient of a loss on the final positions.
+    let mut last_most = ((0, 0), 0.0, glam::DVec3::ZERO);
     for s in 0..steps {
         for sim in sims.iter_mut() {
             sim.step()?;
@@ -97,6 +102,20 @@ fn main() -> anyhow::Result<()> {
                     (nl, worst) = (n, (b, j));
                 }
                 parts.push(((b, j), d1.length(), n));
+            }
+        }
+        if let Some(j) = track {
+            let x = st[0][0].x[j];
+            let d1 = (st[1][0].x[j] - x).length();
+            println!(
+                "track {s:5}: particle {j} at {x:.5?}, |Δ1|/ε = {:.3e} ({})",
+                d1 / eps,
+                distances(&mut sims[0], x)
+            );
+        }
+        if s + 1 == steps {
+            if let Some(&(at, d1, _)) = parts.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
+                last_most = (at, d1, st[0][at.0].x[at.1]);
             }
         }
         let ratio = if d1max > 0.0 { nl / d1max } else { 0.0 };
@@ -129,6 +148,12 @@ fn main() -> anyhow::Result<()> {
         ),
         None => println!("linear in ε over the whole horizon (largest ratio {worst_ratio:.2e} ≤ {NONLINEAR:e})"),
     }
+    let ((b, j), d1, x) = last_most;
+    println!(
+        "most displaced at the end: body {b}, particle {j} at {x:?} in rollout 0, |Δ1|/ε = {:.3e} m per unit Θ ({})",
+        d1 / eps,
+        distances(&mut sims[0], x)
+    );
     match first_switch {
         Some((s, (b, j), x, r, near)) => println!(
             "first particle to switch: step {s}, body {b}, particle {j} at {x:?} in rollout 0 (local ratio {r:.2e}; {near})"
