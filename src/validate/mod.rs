@@ -161,20 +161,15 @@ pub const FREE_FALL_REL_TOL: f64 = 1e-12;
 
 /// Free fall of an elastic block: the largest relative position and velocity errors.
 pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
-    // The default empty_node_ratio, 0: every node touched by a particle is used, so the
-    // partition of unity is exact. A threshold of 1e-6 drops the nodes of tiny weight and
-    // gives a position error of 2.2e-8 relative here, so this check also guards the default.
-    let src = r#"Scene(
-        simulation: (cells: (24, 40, 24), dx: 0.01, dt: 0.01, substeps: 10, steps: Some(20),
-                     stability: Strict),
-        materials: { "jelly": Elastic((density: 1000.0, youngs_modulus: 1e4)) },
-        bodies: [(name: "block", material: "jelly",
-                  fill: Box(min: (0.08, 0.25, 0.08), max: (0.16, 0.33, 0.16)),
-                  velocity: (0.1, 0.5, -0.05))],
-    )"#;
-    let (_, mut sim) = build(src, "free_fall", threads)?;
+    // The shipped scene, so that `validate free_fall` and `simulate scenes/free_fall.ron` run
+    // the same block. It leaves empty_node_ratio at its default, 0: every node touched by a
+    // particle is used, so the partition of unity is exact. A threshold of 1e-6 drops the nodes
+    // of tiny weight and gives a position error of 2.2e-8 relative here, so this check also
+    // guards the default.
+    let src = include_str!("../../scenes/free_fall.ron");
+    let (scene, mut sim) = build(src, "free_fall", threads)?;
     let x0 = sim.body_states()[0].x.clone();
-    let v0 = DVec3::new(0.1, 0.5, -0.05);
+    let v0 = DVec3::from(scene.bodies[0].velocity);
     let g = DVec3::new(0.0, -9.81, 0.0);
     sim.run(sim.horizon, |_| {})?;
     let p = sim.params().clone();
