@@ -14,7 +14,7 @@
 
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
-use powderlab::study::{along, transport_at, transport_scene};
+use powderlab::study::{along, parse_theta, regrid};
 use rayon::prelude::*;
 
 fn main() -> anyhow::Result<()> {
@@ -22,29 +22,29 @@ fn main() -> anyhow::Result<()> {
     let Some(path) = args.get(1) else {
         anyhow::bail!("usage: fd_eps_sweep SCENE [DX_M|-] [THETA] [grad]");
     };
-    let base = Scene::load(path)?;
-    let scene = match args.get(2).map(String::as_str) {
-        Some("-") | None => base,
-        Some(dx) => transport_scene(&transport_at(&base, dx.parse()?, true, None))?,
+    // Checked before the rollouts, which take most of a minute on the default scene.
+    let along_gradient = match args.get(4).map(String::as_str) {
+        None => false,
+        Some("grad") => true,
+        Some(other) => anyhow::bail!("the fourth argument is `grad` or nothing, got {other:?}"),
     };
+    let scene = regrid(Scene::load(path)?, args.get(2).map(String::as_str))?;
     let p = Problem::new(scene, 2048 << 20)?;
     let t0 = match args.get(3) {
         None => p.scene_theta(),
-        Some(t) => {
-            let v: Vec<f64> = t.split(',').map(str::parse).collect::<Result<_, _>>()?;
-            anyhow::ensure!(v.len() == 5, "THETA takes five values, got {}", v.len());
-            std::array::from_fn(|i| v[i])
-        }
+        Some(t) => parse_theta(t)?,
     };
     let o = p.evaluate(t0, true, false)?;
     let g = o.grad.expect("asked for the gradient");
     let norm = g.iter().map(|g| g * g).sum::<f64>().sqrt();
-    let u: [f64; 5] = match args.get(4).map(String::as_str) {
-        None => [1.0 / 5f64.sqrt(); 5],
-        Some("grad") if norm > 0.0 => std::array::from_fn(|i| g[i] / norm),
-        Some(other) => {
-            anyhow::bail!("the fifth argument is `grad` (got {other}, or a zero gradient)")
-        }
+    let u: [f64; 5] = if along_gradient {
+        anyhow::ensure!(
+            norm > 0.0,
+            "the gradient at {t0:?} is zero: no direction to sweep"
+        );
+        std::array::from_fn(|i| g[i] / norm)
+    } else {
+        [1.0 / 5f64.sqrt(); 5]
     };
     println!("Θ = {t0:?}, ∂L/∂Θ = {g:?} (norm {norm:.6e}), u = {u:?}");
     let adj: f64 = g.iter().zip(&u).map(|(g, u)| g * u).sum();

@@ -12,6 +12,7 @@
 //! quarter of the intervals, and how many intervals go against the rise.
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
+use powderlab::study::parse_theta;
 use rayon::prelude::*;
 
 fn main() -> anyhow::Result<()> {
@@ -26,15 +27,7 @@ fn main() -> anyhow::Result<()> {
             b.particles_per_cell = ppc;
         }
     }
-    let theta: Vec<f64> = a[2]
-        .split(',')
-        .map(|x| x.parse())
-        .collect::<Result<_, _>>()?;
-    anyhow::ensure!(
-        theta.len() == 5,
-        "THETA takes five values, got {}",
-        theta.len()
-    );
+    let theta = parse_theta(&a[2])?;
     let k: usize = a[3].parse()?;
     anyhow::ensure!(k < 5, "K is a parameter index 0..=4, got {k}");
     let (lo, hi, n): (f64, f64, usize) = (a[4].parse()?, a[5].parse()?, a[6].parse()?);
@@ -46,7 +39,7 @@ fn main() -> anyhow::Result<()> {
     let outcomes: Vec<_> = xs
         .par_iter()
         .map(|&x| {
-            let mut t: [f64; 5] = std::array::from_fn(|i| theta[i]);
+            let mut t = theta;
             t[k] = x;
             p.evaluate(t, false, true)
         })

@@ -22,7 +22,7 @@
 
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
-use powderlab::study::{along, transport_at, transport_scene};
+use powderlab::study::{along, regrid};
 
 /// `max|Δ₂ − 2Δ₁| / max|Δ₁|` above which a step counts as non-linear in ε: a smooth trajectory
 /// gives O(ε·curvature), about 1e-4 at ε = 1e-7 on the default scene, and a switch O(1).
@@ -47,11 +47,7 @@ fn main() -> anyhow::Result<()> {
     };
     let eps: f64 = args.get(2).map_or(Ok(1e-7), |s| s.parse())?;
     let dir: usize = args.get(3).map_or(Ok(usize::MAX), |s| s.parse())?;
-    let base = Scene::load(path)?;
-    let scene = match args.get(4).map(String::as_str) {
-        Some("-") | None => base,
-        Some(dx) => transport_scene(&transport_at(&base, dx.parse()?, true, None))?,
-    };
+    let scene = regrid(Scene::load(path)?, args.get(4).map(String::as_str))?;
     let track: Option<usize> = std::env::var("TRACK").ok().map(|s| s.parse()).transpose()?;
     let p = Problem::new(scene, 0)?;
     let t0 = p.scene_theta();

@@ -12,6 +12,7 @@
 //! of the sampled gradients are what the README's skill-optimisation section discusses.
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
+use powderlab::study::parse_theta;
 use powderlab::util::SplitMix64;
 use rayon::prelude::*;
 
@@ -30,13 +31,7 @@ fn main() -> anyhow::Result<()> {
         );
     }
     let p = Problem::new(Scene::load(&a[1])?, 1 << 30)?;
-    let t0 = a[2]
-        .split(',')
-        .map(str::parse)
-        .collect::<Result<Vec<f64>, _>>()?;
-    let t0: [f64; 5] = t0
-        .try_into()
-        .map_err(|t: Vec<f64>| anyhow::anyhow!("THETA has {} values, expected 5", t.len()))?;
+    let t0 = parse_theta(&a[2])?;
     let sigma: f64 = a[3].parse()?;
     let n: usize = a[4].parse()?;
     let h: f64 = a[5].parse()?;

@@ -202,6 +202,31 @@ pub fn along(theta: [f64; 5], u: &[f64; 5], s: f64) -> [f64; 5] {
     t
 }
 
+/// Θ from the command line of the diagnostic examples: five comma-separated values.
+pub fn parse_theta(s: &str) -> anyhow::Result<[f64; 5]> {
+    let v = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| anyhow::anyhow!("THETA {s:?}: {e}; give five comma-separated numbers"))?;
+    v.try_into()
+        .map_err(|v: Vec<f64>| anyhow::anyhow!("THETA {s:?} has {} values; give five", v.len()))
+}
+
+/// A skill scene as the diagnostic examples take it: as loaded (`None` or `-`), or re-gridded
+/// at the cell size `dx` (metres) as the error-vs-time study does.
+pub fn regrid(scene: Scene, dx: Option<&str>) -> anyhow::Result<Scene> {
+    match dx {
+        None | Some("-") => Ok(scene),
+        Some(dx) => {
+            let dx: f64 = dx.parse().map_err(|e| {
+                anyhow::anyhow!("DX_M {dx:?}: {e}; give a cell size in metres or -")
+            })?;
+            transport_scene(&transport_at(&scene, dx, true, None))
+        }
+    }
+}
+
 /// A transport configuration on the resolution sweep at cell size `dx`, with the substeps that
 /// keep the scene's CFL number.
 pub fn transport_at(scene: &Scene, dx: f64, gradient: bool, threads: Option<usize>) -> Config {
@@ -815,6 +840,19 @@ mod tests {
             pareto_front(&pts),
             vec![true, false, true, true, false, true]
         );
+    }
+
+    #[test]
+    fn theta_takes_exactly_five_numbers() {
+        assert_eq!(
+            parse_theta("0.3, 0.2,0,-1,1").unwrap(),
+            [0.3, 0.2, 0.0, -1.0, 1.0]
+        );
+        assert!(parse_theta("0.3,0.2,0,-1")
+            .unwrap_err()
+            .to_string()
+            .contains("has 4 values"));
+        assert!(parse_theta("0.3,x,0,-1,1").is_err());
     }
 
     #[test]
