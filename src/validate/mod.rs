@@ -170,7 +170,7 @@ pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
     let (scene, mut sim) = build(src, "free_fall", threads)?;
     let x0 = sim.body_states()[0].x.clone();
     let v0 = DVec3::from(scene.bodies[0].velocity);
-    let g = DVec3::new(0.0, -9.81, 0.0);
+    let g = DVec3::from(scene.simulation.gravity);
     sim.run(sim.horizon, |_| {})?;
     let p = sim.params().clone();
     let t = sim.horizon as f64 * p.dt;
