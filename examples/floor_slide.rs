@@ -16,28 +16,42 @@ use powderlab::scene::Scene;
 use powderlab::sim::{SimOptions, Simulation};
 use std::path::Path;
 
-fn scene(v: f64, h: f64, ppc: usize) -> String {
-    // The default scene's grid, walls, substeps and powder (scenes/powder_transport.ron); the
-    // clump fills one cell at x = 0.1 m, z = 0.05 m, its bottom `h` above the floor band.
-    let y0 = 0.015 + h;
-    format!(
-        r#"Scene(
-    simulation: (domain_min: (0.0, 0.0, 0.0), cells: (50, 26, 20), dx: 0.005, dt: 0.01,
-                 substeps: 12, stability: Auto,
-                 walls: (cells: 3, contact: Separate, friction: 0.3)),
-    materials: {{ "powder": DruckerPrager((density: 1500.0, youngs_modulus: 5e3,
-                                           poisson_ratio: 0.3, friction_deg: 30.0)) }},
-    bodies: [(name: "clump", material: "powder",
-              fill: Box(min: (0.1, {y0}, 0.05), max: (0.105, {y1}, 0.055)),
-              particles_per_cell: {ppc}, velocity: ({v}, 0.0, 0.0))],
-)"#,
-        y1 = y0 + 0.005
-    )
+/// The scene whose grid, walls, substeps and powder the clump uses.
+const SCENE: &str = "scenes/powder_transport.ron";
+
+/// That scene without its cups, spoon and task, and with its powder body replaced by a clump
+/// filling one cell at x = 0.1 m, z = 0.05 m, its bottom `h` above the floor's wall layers.
+fn scene(v: f64, h: f64, ppc: usize) -> anyhow::Result<Scene> {
+    let base = Scene::load(SCENE)?;
+    let sim = &base.simulation;
+    let dx = sim.dx;
+    let y0 = sim.domain_min.1 + sim.walls.cells as f64 * dx + h;
+    let material = &base.bodies[0].material;
+    let body = format!(
+        "(name: \"clump\", material: \"{material}\", \
+         fill: Box(min: (0.1, {y0}, 0.05), max: ({x1}, {y1}, {z1})), \
+         particles_per_cell: {ppc}, velocity: ({v}, 0.0, 0.0))",
+        x1 = 0.1 + dx,
+        y1 = y0 + dx,
+        z1 = 0.05 + dx,
+    );
+    let clump = Scene {
+        bodies: vec![ron::from_str(&body)?],
+        colliders: Vec::new(),
+        task: None,
+        record: None,
+        loss: None,
+        ..base
+    };
+    // Through the scene parser, so that the clump scene is validated like a file.
+    Ok(Scene::parse(
+        &ron::to_string(&clump)?,
+        Path::new("<floor_slide>"),
+    )?)
 }
 
 fn final_x(v: f64, h: f64, ppc: usize, steps: usize) -> anyhow::Result<(Vec<DVec3>, usize)> {
-    let s = Scene::parse(&scene(v, h, ppc), Path::new("<floor_slide>"))?;
-    let mut sim = Simulation::new(&s, &SimOptions::default())?;
+    let mut sim = Simulation::new(&scene(v, h, ppc)?, &SimOptions::default())?;
     let subs = sim.params().substeps;
     sim.run(steps, |_| {})?;
     Ok((sim.body_states()[0].x.clone(), subs))
