@@ -7,12 +7,13 @@
 //! sharp bottom corner of a cup; see the README, "Gradients").
 //!
 //! ```sh
-//! cargo run --release --example rollout_divergence -- SCENE [EPS] [DIRECTION] [DX_M]
+//! cargo run --release --example rollout_divergence -- SCENE [EPS] [DIRECTION] [DX_M|-] [THETA]
 //! ```
 //!
 //! `EPS` defaults to 1e-7; `DIRECTION` is 0–4 for one skill parameter, anything else (the
 //! default) for `u = (1, …, 1)/√5`; `DX_M` re-grids the scene as `powderlab study
-//! error-vs-time` does (`-` keeps its grid). With `TRACK=J` in the environment, every step also
+//! error-vs-time` does (`-` keeps its grid); `THETA` (five comma-separated values) replaces the
+//! scene's Θ. With `TRACK=J` in the environment, every step also
 //! prints particle `J` of the first body: its `|Δ₁|/ε` and its distance to every collider.
 //!
 //! Besides the ratio over the whole body, each step prints the largest ratio of one particle to
@@ -22,7 +23,7 @@
 
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
-use powderlab::study::{along, regrid};
+use powderlab::study::{along, parse_theta, regrid};
 
 /// `max|Δ₂ − 2Δ₁| / max|Δ₁|` above which a step counts as non-linear in ε: a smooth trajectory
 /// gives O(ε·curvature), about 1e-4 at ε = 1e-7 on the default scene, and a switch O(1).
@@ -43,14 +44,17 @@ const ROUND_OFF: f64 = 1e-13;
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let Some(path) = args.get(1) else {
-        anyhow::bail!("usage: rollout_divergence SCENE [EPS] [DIRECTION] [DX_M]");
+        anyhow::bail!("usage: rollout_divergence SCENE [EPS] [DIRECTION] [DX_M|-] [THETA]");
     };
     let eps: f64 = args.get(2).map_or(Ok(1e-7), |s| s.parse())?;
     let dir: usize = args.get(3).map_or(Ok(usize::MAX), |s| s.parse())?;
     let scene = regrid(Scene::load(path)?, args.get(4).map(String::as_str))?;
     let track: Option<usize> = std::env::var("TRACK").ok().map(|s| s.parse()).transpose()?;
     let p = Problem::new(scene, 0)?;
-    let t0 = p.scene_theta();
+    let t0 = match args.get(5) {
+        None => p.scene_theta(),
+        Some(t) => parse_theta(t)?,
+    };
     let u: [f64; 5] = if dir < 5 {
         let mut u = [0.0; 5];
         u[dir] = 1.0;
