@@ -742,25 +742,61 @@ fn validate_cmd(
                 },
             )
         };
-        let mut at_one = None;
-        for (band, aspects, slope, tol) in [
-            ("small", [0.5, 1.0, 1.5], 1.0, 0.15),
-            ("large", [4.0, 6.0, 8.0], 2.0 / 3.0, 0.12),
-        ] {
-            let mut rs = Vec::new();
-            for a in aspects {
-                let r = collapse(a, cells)?;
-                if a == 1.0 {
-                    at_one = Some(r.clone());
-                }
-                rs.push(r);
-            }
-            checks.extend(validate::collapse_checks(band, &rs, slope, tol));
+        // The small-a band: columns of equal height on one grid (see `equal_height_cells`),
+        // and the same band at `cells` across L0 for every column, whose slope the note gives.
+        let a_max = validate::SMALL_A[2];
+        let mut equal_height = Vec::new();
+        let mut equal_length = Vec::new();
+        for a in validate::SMALL_A {
+            let r = collapse(a, validate::equal_height_cells(a, a_max, cells))?;
+            equal_length.push(if r.cells_across == cells {
+                r.clone()
+            } else {
+                collapse(a, cells)?
+            });
+            equal_height.push(r);
         }
-        if let Some(coarse) = &at_one {
-            let fine = collapse(1.0, 2 * cells)?;
-            checks.push(validate::halving_check(coarse, &fine, cells));
+        let height = (a_max * cells as f64).round();
+        let slope_at = |rs: &[validate::CollapseResult]| {
+            validate::loglog_slope(
+                &rs.iter()
+                    .map(|r| (r.aspect, r.runout_ratio.max(1e-9)))
+                    .collect::<Vec<_>>(),
+            )
+        };
+        checks.extend(validate::collapse_checks(
+            &format!("small-a (columns {height} cells high)"),
+            &equal_height,
+            1.0,
+            0.15,
+            &format!(
+                "every column {height} cells high, {:?} cells across L0; with {cells} cells \
+                 across L0 at every a the run-outs are {:?} and the slope {:.3}, because the \
+                 run-out grows with the cells across the flow (the halving check)",
+                equal_height
+                    .iter()
+                    .map(|r| r.cells_across)
+                    .collect::<Vec<_>>(),
+                equal_length
+                    .iter()
+                    .map(|r| r.runout_ratio)
+                    .collect::<Vec<_>>(),
+                slope_at(&equal_length)
+            ),
+        ));
+        let mut large = Vec::new();
+        for a in validate::LARGE_A {
+            large.push(collapse(a, cells)?);
         }
+        checks.extend(validate::collapse_checks(
+            "large-a",
+            &large,
+            2.0 / 3.0,
+            0.12,
+            &format!("{cells} cells across L0 at every a"),
+        ));
+        let fine = collapse(1.0, 2 * cells)?;
+        checks.push(validate::halving_check(&equal_length[1], &fine, cells));
         checks.push(validate::scale_invariance(1.0, cells, threads)?);
     }
     if wants("pile_angle") {

@@ -210,6 +210,26 @@ pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
 /// Cells across L₀ of `validate column_collapse` (granular.md: at least 20).
 pub const COLLAPSE_CELLS: usize = 20;
 
+/// Aspect ratios of the small-a band of `validate column_collapse` (granular.md's example).
+pub const SMALL_A: [f64; 3] = [0.5, 1.0, 1.5];
+
+/// Aspect ratios of the large-a band of `validate column_collapse` (granular.md's example).
+pub const LARGE_A: [f64; 3] = [4.0, 6.0, 8.0];
+
+/// Cells across L₀ for the column of aspect ratio `a` in a band whose columns all stand
+/// `cells·a_max` cells high, the tallest (`a_max`) having `cells` across L₀: `cells·a_max/a`,
+/// rounded (exact for the small-a band at an even `cells`).
+///
+/// The small-a law, ΔL/L₀ ≈ 1.2a, says ΔL ≈ 1.2 H₀ whatever L₀. The run-out of this model grows
+/// with the cells across the flow without converging (the cell-halving check), so a band swept
+/// at a fixed number of cells across L₀ resolves its taller columns by more cells and gives them
+/// longer run-outs: the slope then carries the grid's trend as well as the law's exponent
+/// (1.205 at 20 cells across L₀, 1.301 at 40). Columns of equal height in cells, on one grid,
+/// differ only in L₀, which is what the law is about.
+pub fn equal_height_cells(a: f64, a_max: f64, cells: usize) -> usize {
+    (cells as f64 * a_max / a).round().max(1.0) as usize
+}
+
 /// Settings of one planar column collapse.
 #[derive(Clone, Copy, Debug)]
 pub struct Collapse {
@@ -254,6 +274,8 @@ impl Collapse {
 #[derive(Clone, Debug, Serialize)]
 pub struct CollapseResult {
     pub aspect: f64,
+    /// Grid cells across L₀.
+    pub cells_across: usize,
     pub runout_ratio: f64,
     /// When the run stopped, over `T_c = √(H₀/g)`: the kinetic energy fell below 1e-6 of the
     /// initial potential energy (granular.md's condition for reading the run-out); `None` if it
@@ -261,8 +283,9 @@ pub struct CollapseResult {
     pub arrest_tc: Option<f64>,
     /// Arrest time of the front over `T_c`: the first time after which the deposit front
     /// ([`deposit_front`]) stays within one cell of its final position ([`front_arrest`]). This
-    /// is what the experiments time, and the arrest check uses it when the run came to rest
-    /// (`arrest_tc` is `Some`); in a run cut off at 6 T_c the front may have moved later.
+    /// is what the experiments time, and the arrest check uses it. In a run cut off at 6 T_c
+    /// (`arrest_tc` is `None`) it is the time since which the front stood still until then,
+    /// and the check's note says so.
     pub front_arrest_tc: Option<f64>,
     pub particles: usize,
     pub substeps: u64,
@@ -395,6 +418,7 @@ pub fn run_collapse(
     let st = sim.body_states();
     Ok(CollapseResult {
         aspect: c.aspect,
+        cells_across: c.cells_across,
         runout_ratio: (front - c.length) / c.length,
         arrest_tc: arrest,
         front_arrest_tc: front_arrest(&fronts, 1).map(|t| t / tc),
@@ -466,12 +490,14 @@ pub fn loglog_slope(points: &[(f64, f64)]) -> f64 {
     num / den
 }
 
-/// Checks of a run-out band: each point within a factor 2 of the law, and the fitted slope.
+/// Checks of a run-out band: each point within a factor 2 of the law, the fitted slope (its
+/// row named `band`, with `slope_note` added to its note), and each front's arrest time.
 pub fn collapse_checks(
     band: &str,
     results: &[CollapseResult],
     slope: f64,
     slope_tol: f64,
+    slope_note: &str,
 ) -> Vec<Check> {
     let mut out = Vec::new();
     for r in results {
@@ -486,7 +512,9 @@ pub fn collapse_checks(
             kind: "factor<=tol",
             passed: r.runout_ratio > 0.0 && factor <= 2.0,
             note: format!(
-                "{} particles, {} substeps, {:.1} s; arrest at {} T_c",
+                "{} cells across L0, {} high; {} particles, {} substeps, {:.1} s; arrest at {} T_c",
+                r.cells_across,
+                (r.aspect * r.cells_across as f64).round(),
                 r.particles,
                 r.substeps,
                 r.wall_s,
@@ -502,20 +530,30 @@ pub fn collapse_checks(
         let s = loglog_slope(&pts);
         out.push(Check {
             case: "column_collapse".into(),
-            quantity: format!("{band}-a log-log slope"),
+            quantity: format!("{band} log-log slope"),
             measured: s,
             published: slope,
             tolerance: slope_tol,
             kind: "|m-p|<=tol",
             passed: (s - slope).abs() <= slope_tol,
             note: format!(
-                "a = {:?}",
-                results.iter().map(|r| r.aspect).collect::<Vec<_>>()
+                "a = {:?}{}{slope_note}",
+                results.iter().map(|r| r.aspect).collect::<Vec<_>>(),
+                if slope_note.is_empty() { "" } else { "; " }
             ),
         });
     }
     for r in results {
-        if let (Some(t), Some(ke)) = (r.front_arrest_tc, r.arrest_tc) {
+        if let Some(t) = r.front_arrest_tc {
+            let rest = match r.arrest_tc {
+                Some(ke) => format!(
+                    "kinetic energy below 1e-6 of the initial potential energy at {ke:.2} T_c"
+                ),
+                // The deposit still rings at 6 T_c; the front has stood still since `t`.
+                None => "kinetic energy still above 1e-6 of the initial potential energy when \
+                         the run was cut off at 6 T_c, the front still since this time"
+                    .to_string(),
+            };
             out.push(Check {
                 case: "column_collapse".into(),
                 quantity: format!("front arrest time / T_c at a = {}", r.aspect),
@@ -526,8 +564,7 @@ pub fn collapse_checks(
                 passed: (2.0..=4.5).contains(&t),
                 note: format!(
                     "Lajeunesse et al. 2005: flow stops after about 3 T_c; the front stays \
-                     within one cell of its final position from here; kinetic energy below \
-                     1e-6 of the initial potential energy at {ke:.2} T_c"
+                     within one cell of its final position from here; {rest}"
                 ),
             });
         }
@@ -641,5 +678,62 @@ mod tests {
         // A front that never moved arrested at the first sample; an empty trace has no time.
         assert_eq!(front_arrest(&[(0.5, 3), (1.0, 3)], 1), Some(0.5));
         assert_eq!(front_arrest(&[], 1), None);
+    }
+
+    #[test]
+    fn equal_height_columns_share_one_height_in_cells() {
+        // At the validation's 20 cells: 60, 30 and 20 across L0, every column 30 cells high.
+        let cells: Vec<usize> = SMALL_A
+            .iter()
+            .map(|&a| equal_height_cells(a, 1.5, 20))
+            .collect();
+        assert_eq!(cells, [60, 30, 20]);
+        for (&a, &n) in SMALL_A.iter().zip(&cells) {
+            assert_eq!(a * n as f64, 30.0);
+        }
+        // An odd count rounds (7.5 → 8), and the tallest column keeps the count given.
+        assert_eq!(equal_height_cells(1.0, 1.5, 5), 8);
+        assert_eq!(equal_height_cells(1.5, 1.5, 5), 5);
+    }
+
+    fn result(aspect: f64, front_arrest_tc: Option<f64>, arrest_tc: Option<f64>) -> CollapseResult {
+        CollapseResult {
+            aspect,
+            cells_across: 20,
+            runout_ratio: lube_runout(aspect),
+            arrest_tc,
+            front_arrest_tc,
+            particles: 1,
+            substeps: 1,
+            substeps_per_step: 1,
+            wall_s: 0.0,
+            deposit: Vec::new(),
+            front_trace: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_run_cut_off_while_ringing_still_gets_its_front_arrest_row() {
+        let rs = [
+            result(0.5, Some(3.3), None),
+            result(1.0, Some(2.9), Some(4.5)),
+            result(1.5, Some(5.0), Some(5.5)),
+        ];
+        let checks = collapse_checks("small-a", &rs, 1.0, 0.15, "a note");
+        let arrest: Vec<&Check> = checks
+            .iter()
+            .filter(|c| c.quantity.starts_with("front arrest"))
+            .collect();
+        assert_eq!(arrest.len(), 3);
+        assert!(arrest[0].passed && arrest[0].note.contains("cut off at 6 T_c"));
+        assert!(arrest[1].passed && arrest[1].note.contains("at 4.50 T_c"));
+        assert!(!arrest[2].passed);
+        // The law's own run-outs fit a slope of exactly 1, and the note is kept.
+        let slope = checks
+            .iter()
+            .find(|c| c.quantity == "small-a log-log slope")
+            .unwrap();
+        assert!(slope.passed && (slope.measured - 1.0).abs() < 1e-12);
+        assert!(slope.note.ends_with("; a note"));
     }
 }

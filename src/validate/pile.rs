@@ -374,6 +374,7 @@ mod tests {
                 rms: 0.3 / 40.0,
             }),
             collapse: CollapseResult {
+                cells_across: 10,
                 aspect: PILE_ASPECT,
                 runout_ratio: 0.5,
                 arrest_tc: Some(3.0),
