@@ -397,7 +397,11 @@ pub fn markdown(results: &[CaseResult]) -> String {
                     if energy_gain.is_nan() {
                         "not checked (a driven tool does work)".to_string()
                     } else {
-                        format!("{:.2} % of the energy in play", 100.0 * energy_gain)
+                        // Two significant digits below 0.005 %, so that "0.00 %" is a true 0.
+                        format!(
+                            "{} of the energy in play",
+                            crate::study::percent(*energy_gain)
+                        )
                     }
                 ),
             ),
