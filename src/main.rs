@@ -765,13 +765,13 @@ fn validate_cmd(
             )
         };
         checks.extend(validate::collapse_checks(
-            &format!("small-a (columns {height} cells high)"),
+            "small-a (equal heights)",
             &equal_height,
             1.0,
             0.15,
             &format!(
                 "every column {height} cells high, {:?} cells across L0; with {cells} cells \
-                 across L0 at every a the run-outs are {:?} and the slope {:.3}, because the \
+                 across L0 at every a the run-outs are {} and the slope {:.3}, because the \
                  run-out grows with the cells across the flow (the halving check)",
                 equal_height
                     .iter()
@@ -779,8 +779,9 @@ fn validate_cmd(
                     .collect::<Vec<_>>(),
                 equal_length
                     .iter()
-                    .map(|r| r.runout_ratio)
-                    .collect::<Vec<_>>(),
+                    .map(|r| format!("{:.3}", r.runout_ratio))
+                    .collect::<Vec<_>>()
+                    .join(", "),
                 slope_at(&equal_length)
             ),
         ));
