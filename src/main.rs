@@ -96,8 +96,9 @@ enum Command {
         /// (every case but stability, which has its own table).
         #[arg(default_value = "all")]
         case: String,
-        /// Grid cells across the collapsing column (default 20, the published check) or the
-        /// pile's column (default 40, at least 10).
+        /// Grid cells across the collapsing column (default 20, the published check: every
+        /// large-a column, and the tallest small-a one, whose band stands 1.5× as many cells
+        /// high) or the pile's column (default 40, at least 10).
         #[arg(long)]
         cells: Option<usize>,
         #[arg(long, value_parser = threads_arg)]
@@ -757,13 +758,6 @@ fn validate_cmd(
             equal_height.push(r);
         }
         let height = (a_max * cells as f64).round();
-        let slope_at = |rs: &[validate::CollapseResult]| {
-            validate::loglog_slope(
-                &rs.iter()
-                    .map(|r| (r.aspect, r.runout_ratio.max(1e-9)))
-                    .collect::<Vec<_>>(),
-            )
-        };
         checks.extend(validate::collapse_checks(
             "small-a (equal heights)",
             &equal_height,
@@ -782,7 +776,7 @@ fn validate_cmd(
                     .map(|r| format!("{:.3}", r.runout_ratio))
                     .collect::<Vec<_>>()
                     .join(", "),
-                slope_at(&equal_length)
+                validate::band_slope(&equal_length)
             ),
         ));
         let mut large = Vec::new();

@@ -490,6 +490,15 @@ pub fn loglog_slope(points: &[(f64, f64)]) -> f64 {
     num / den
 }
 
+/// The log–log slope of a band's run-outs against its aspect ratios.
+pub fn band_slope(results: &[CollapseResult]) -> f64 {
+    let pts: Vec<(f64, f64)> = results
+        .iter()
+        .map(|r| (r.aspect, r.runout_ratio.max(1e-9)))
+        .collect();
+    loglog_slope(&pts)
+}
+
 /// Checks of a run-out band: each point within a factor 2 of the law, the fitted slope (its
 /// row named `band`, with `slope_note` added to its note), and each front's arrest time.
 pub fn collapse_checks(
@@ -523,11 +532,7 @@ pub fn collapse_checks(
         });
     }
     if results.len() >= 2 {
-        let pts: Vec<(f64, f64)> = results
-            .iter()
-            .map(|r| (r.aspect, r.runout_ratio.max(1e-9)))
-            .collect();
-        let s = loglog_slope(&pts);
+        let s = band_slope(results);
         out.push(Check {
             case: "column_collapse".into(),
             quantity: format!("{band} log-log slope"),
