@@ -743,42 +743,8 @@ fn validate_cmd(
                 },
             )
         };
-        // The small-a band: columns of equal height on one grid (see `equal_height_cells`),
-        // and the same band at `cells` across L0 for every column, whose slope the note gives.
-        let a_max = validate::SMALL_A[2];
-        let mut equal_height = Vec::new();
-        let mut equal_length = Vec::new();
-        for a in validate::SMALL_A {
-            let r = collapse(a, validate::equal_height_cells(a, a_max, cells))?;
-            equal_length.push(if r.cells_across == cells {
-                r.clone()
-            } else {
-                collapse(a, cells)?
-            });
-            equal_height.push(r);
-        }
-        let height = (a_max * cells as f64).round();
-        checks.extend(validate::collapse_checks(
-            "small-a (equal heights)",
-            &equal_height,
-            1.0,
-            0.15,
-            &format!(
-                "every column {height} cells high, {:?} cells across L0; with {cells} cells \
-                 across L0 at every a the run-outs are {} and the slope {:.3}, because the \
-                 run-out grows with the cells across the flow (the halving check)",
-                equal_height
-                    .iter()
-                    .map(|r| r.cells_across)
-                    .collect::<Vec<_>>(),
-                equal_length
-                    .iter()
-                    .map(|r| format!("{:.3}", r.runout_ratio))
-                    .collect::<Vec<_>>()
-                    .join(", "),
-                validate::band_slope(&equal_length)
-            ),
-        ));
+        let (small, at_one) = validate::small_a_band(cells, &collapse)?;
+        checks.extend(small);
         let mut large = Vec::new();
         for a in validate::LARGE_A {
             large.push(collapse(a, cells)?);
@@ -786,12 +752,12 @@ fn validate_cmd(
         checks.extend(validate::collapse_checks(
             "large-a",
             &large,
-            2.0 / 3.0,
-            0.12,
+            validate::LARGE_A_SLOPE,
+            validate::LARGE_A_SLOPE_TOL,
             &format!("{cells} cells across L0 at every a"),
         ));
         let fine = collapse(1.0, 2 * cells)?;
-        checks.push(validate::halving_check(&equal_length[1], &fine, cells));
+        checks.push(validate::halving_check(&at_one, &fine, cells));
         checks.push(validate::scale_invariance(1.0, cells, threads)?);
     }
     if wants("pile_angle") {

@@ -5,7 +5,9 @@
 //! of equal height. Resolutions are coarse to keep the test fast; `powderlab validate
 //! column_collapse` runs the full sweep and fits the slopes of three points per band.
 
-use powderlab::validate::{equal_height_cells, lube_runout, run_collapse, Collapse};
+use powderlab::validate::{
+    equal_height_cells, lube_runout, run_collapse, Collapse, SMALL_A_SLOPE, SMALL_A_SLOPE_TOL,
+};
 
 /// Every run-out within this factor of the law (as in shared/validation/granular.md).
 const FACTOR: f64 = 2.0;
@@ -14,9 +16,6 @@ const FACTOR: f64 = 2.0;
 /// a slope of 1.000. At 16 cells high the pair gives 0.688 and 1.312 (slope 0.931): whole-cell
 /// run-outs of low columns jitter by about 5 % between neighbouring resolutions.
 const CELLS_SMALL_A: usize = 20;
-/// The small-a exponent and its tolerance (granular.md: about 1.0 ± 0.15).
-const SMALL_A_SLOPE: f64 = 1.0;
-const SMALL_A_SLOPE_TOL: f64 = 0.15;
 /// Cells across the column for the large-a pair (48 cells high at a = 6).
 const CELLS_LARGE_A: usize = 8;
 

@@ -216,6 +216,14 @@ pub const SMALL_A: [f64; 3] = [0.5, 1.0, 1.5];
 /// Aspect ratios of the large-a band of `validate column_collapse` (granular.md's example).
 pub const LARGE_A: [f64; 3] = [4.0, 6.0, 8.0];
 
+/// The small-a band's log–log slope and its tolerance (granular.md: "about 1.0 ± 0.15").
+pub const SMALL_A_SLOPE: f64 = 1.0;
+pub const SMALL_A_SLOPE_TOL: f64 = 0.15;
+
+/// The large-a band's log–log slope and its tolerance (granular.md: "0.67 ± 0.12").
+pub const LARGE_A_SLOPE: f64 = 2.0 / 3.0;
+pub const LARGE_A_SLOPE_TOL: f64 = 0.12;
+
 /// Cells across L₀ for the column of aspect ratio `a` in a band whose columns all stand
 /// `cells·a_max` cells high, the tallest (`a_max`) having `cells` across L₀: `cells·a_max/a`,
 /// rounded (exact for the small-a band at an even `cells`).
@@ -298,6 +306,38 @@ pub struct CollapseResult {
     /// `(t, front)` after every step: the time (s) and [`deposit_front_cells`] in cells.
     #[serde(skip)]
     pub front_trace: Vec<(f64, usize)>,
+}
+
+impl CollapseResult {
+    /// Grid cells across the column's height H₀ = a·L₀.
+    pub fn cells_high(&self) -> f64 {
+        (self.aspect * self.cells_across as f64).round()
+    }
+
+    /// A result carrying only what the checks read (the run's bookkeeping at 1 or empty), for
+    /// the unit tests of the checks built on it.
+    #[cfg(test)]
+    pub(crate) fn for_checks(
+        aspect: f64,
+        cells_across: usize,
+        runout_ratio: f64,
+        front_arrest_tc: Option<f64>,
+        arrest_tc: Option<f64>,
+    ) -> Self {
+        Self {
+            aspect,
+            cells_across,
+            runout_ratio,
+            arrest_tc,
+            front_arrest_tc,
+            particles: 1,
+            substeps: 1,
+            substeps_per_step: 1,
+            wall_s: 0.0,
+            deposit: Vec::new(),
+            front_trace: Vec::new(),
+        }
+    }
 }
 
 /// The published run-out law (Lube et al. 2005), regime by aspect ratio.
@@ -499,6 +539,53 @@ pub fn band_slope(results: &[CollapseResult]) -> f64 {
     loglog_slope(&pts)
 }
 
+/// The small-a band of `validate column_collapse`: [`SMALL_A`] on columns of equal height, the
+/// tallest `cells` across L₀ ([`equal_height_cells`]), checked against the law; and the same
+/// band at `cells` across L₀ for every column, whose run-outs and slope the slope row's note
+/// gives. `collapse(a, cells_across)` runs one column. Returns the checks and the a = 1 column
+/// at `cells` across L₀, for the cell-halving check.
+pub fn small_a_band(
+    cells: usize,
+    mut collapse: impl FnMut(f64, usize) -> anyhow::Result<CollapseResult>,
+) -> anyhow::Result<(Vec<Check>, CollapseResult)> {
+    let a_max = SMALL_A[2];
+    let mut equal_height = Vec::new();
+    let mut equal_length = Vec::new();
+    for a in SMALL_A {
+        let r = collapse(a, equal_height_cells(a, a_max, cells))?;
+        equal_length.push(if r.cells_across == cells {
+            r.clone()
+        } else {
+            collapse(a, cells)?
+        });
+        equal_height.push(r);
+    }
+    let checks = collapse_checks(
+        "small-a (equal heights)",
+        &equal_height,
+        SMALL_A_SLOPE,
+        SMALL_A_SLOPE_TOL,
+        &format!(
+            "every column {} cells high, {:?} cells across L0; with {cells} cells across L0 at \
+             every a the run-outs are {} and the slope {:.3}, because the run-out grows with the \
+             cells across the flow (the halving check)",
+            equal_height[2].cells_high(),
+            equal_height
+                .iter()
+                .map(|r| r.cells_across)
+                .collect::<Vec<_>>(),
+            equal_length
+                .iter()
+                .map(|r| format!("{:.3}", r.runout_ratio))
+                .collect::<Vec<_>>()
+                .join(", "),
+            band_slope(&equal_length)
+        ),
+    );
+    let at_one = equal_length.swap_remove(1);
+    Ok((checks, at_one))
+}
+
 /// Checks of a run-out band: each point within a factor 2 of the law, the fitted slope (its
 /// row named `band`, with `slope_note` added to its note), and each front's arrest time.
 pub fn collapse_checks(
@@ -523,7 +610,7 @@ pub fn collapse_checks(
             note: format!(
                 "{} cells across L0, {} high; {} particles, {} substeps, {:.1} s; arrest at {} T_c",
                 r.cells_across,
-                (r.aspect * r.cells_across as f64).round(),
+                r.cells_high(),
                 r.particles,
                 r.substeps,
                 r.wall_s,
@@ -702,19 +789,7 @@ mod tests {
     }
 
     fn result(aspect: f64, front_arrest_tc: Option<f64>, arrest_tc: Option<f64>) -> CollapseResult {
-        CollapseResult {
-            aspect,
-            cells_across: 20,
-            runout_ratio: lube_runout(aspect),
-            arrest_tc,
-            front_arrest_tc,
-            particles: 1,
-            substeps: 1,
-            substeps_per_step: 1,
-            wall_s: 0.0,
-            deposit: Vec::new(),
-            front_trace: Vec::new(),
-        }
+        CollapseResult::for_checks(aspect, 20, lube_runout(aspect), front_arrest_tc, arrest_tc)
     }
 
     #[test]

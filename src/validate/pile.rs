@@ -373,19 +373,7 @@ mod tests {
                 points: 10,
                 rms: 0.3 / 40.0,
             }),
-            collapse: CollapseResult {
-                cells_across: 10,
-                aspect: PILE_ASPECT,
-                runout_ratio: 0.5,
-                arrest_tc: Some(3.0),
-                front_arrest_tc: Some(2.5),
-                particles: 1,
-                substeps: 1,
-                substeps_per_step: 1,
-                wall_s: 0.0,
-                deposit: Vec::new(),
-                front_trace: Vec::new(),
-            },
+            collapse: CollapseResult::for_checks(PILE_ASPECT, 10, 0.5, Some(2.5), Some(3.0)),
         }
     }
 
