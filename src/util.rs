@@ -1,4 +1,4 @@
-//! Small helpers: atomic file writes and peak memory.
+//! Small helpers: atomic file writes, peak memory and percentages.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -133,5 +133,31 @@ impl SplitMix64 {
     /// Uniform index in `0..n` (n > 0).
     pub fn index(&mut self, n: usize) -> usize {
         ((self.uniform() * n as f64) as usize).min(n - 1)
+    }
+}
+
+/// A fraction as a percentage: two decimals, or two significant digits where that would print a
+/// non-zero value as "0.00 %" (the error-vs-time table's transport gradient agrees with finite
+/// differences to a few 1e-5, and the stability table's energy rises must show a true 0).
+pub fn percent(v: f64) -> String {
+    let p = 100.0 * v;
+    if p != 0.0 && p.abs() < 0.005 {
+        format!("{p:.1e} %")
+    } else {
+        format!("{p:.2} %")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn small_errors_keep_their_digits() {
+        assert_eq!(percent(0.0), "0.00 %");
+        assert_eq!(percent(2.5e-5), "2.5e-3 %");
+        assert_eq!(percent(-4.9e-7), "-4.9e-5 %");
+        assert_eq!(percent(5e-5), "0.01 %");
+        assert_eq!(percent(0.049), "4.90 %");
     }
 }

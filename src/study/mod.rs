@@ -706,21 +706,9 @@ pub fn csv(rows: &[Row]) -> String {
     s
 }
 
-/// A relative error as a percentage: two decimals, or two significant digits where that would
-/// print a non-zero error as "0.00 %" (the transport gradient agrees with finite differences to
-/// a few 1e-5, which the table must not round away).
-pub fn percent(v: f64) -> String {
-    let p = 100.0 * v;
-    if p != 0.0 && p.abs() < 0.005 {
-        format!("{p:.1e} %")
-    } else {
-        format!("{p:.2} %")
-    }
-}
-
 /// A Markdown table of the analysis (for the README and the terminal).
 pub fn markdown(rows: &[Row]) -> String {
-    let pct = |v: Option<f64>| v.map_or(String::new(), percent);
+    let pct = |v: Option<f64>| v.map_or(String::new(), crate::util::percent);
     let mut s = String::from(
         "| case | sweep | dx (mm) | ppc | substeps | particles | quantity | value | err vs finest | err vs law | err vs FD | wall (s) | peak RSS (MB) | Pareto |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
@@ -853,15 +841,6 @@ mod tests {
             .to_string()
             .contains("has 4 values"));
         assert!(parse_theta("0.3,x,0,-1,1").is_err());
-    }
-
-    #[test]
-    fn small_errors_keep_their_digits() {
-        assert_eq!(percent(0.0), "0.00 %");
-        assert_eq!(percent(2.5e-5), "2.5e-3 %");
-        assert_eq!(percent(-4.9e-7), "-4.9e-5 %");
-        assert_eq!(percent(5e-5), "0.01 %");
-        assert_eq!(percent(0.049), "4.90 %");
     }
 
     fn collapse_result(

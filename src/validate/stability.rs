@@ -400,7 +400,7 @@ pub fn markdown(results: &[CaseResult]) -> String {
                         // Two significant digits below 0.005 %, so that "0.00 %" is a true 0.
                         format!(
                             "{} of the energy in play",
-                            crate::study::percent(*energy_gain)
+                            crate::util::percent(*energy_gain)
                         )
                     }
                 ),
