@@ -60,8 +60,15 @@ fn final_x(v: f64, h: f64, ppc: usize, steps: usize) -> anyhow::Result<(Vec<DVec
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();
     let arg = |k: usize, d: f64| a.get(k).map_or(Ok(d), |s| s.parse::<f64>());
+    // PPC and STEPS are counts: "2.5" is refused, not truncated to 2.
+    let count = |k: usize, name: &str, d: usize| {
+        a.get(k).map_or(Ok(d), |s| {
+            s.parse::<usize>()
+                .map_err(|e| anyhow::anyhow!("{name} = {s:?}: {e}; give a whole number"))
+        })
+    };
     let (v, h) = (arg(1, 0.3)?, arg(2, 0.03)?);
-    let (ppc, steps) = (arg(3, 1.0)? as usize, arg(4, 150.0)? as usize);
+    let (ppc, steps) = (count(3, "PPC", 1)?, count(4, "STEPS", 150)?);
     let (x, subs) = final_x(v, h, ppc, steps)?;
     let mean = |x: &[DVec3]| x.iter().sum::<DVec3>() / x.len() as f64;
     let m = mean(&x);
