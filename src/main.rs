@@ -960,6 +960,10 @@ struct OptimizeArgs {
     /// README's skill-optimisation section).
     #[arg(long)]
     grad_normalize: bool,
+    /// Clip each gradient to the median length of the seed's gradients so far before RMSprop
+    /// (not the paper's method; see the README's skill-optimisation section).
+    #[arg(long)]
+    grad_clip_median: bool,
     /// CMA-ES samples per generation.
     #[arg(long, default_value_t = 6)]
     cmaes_population: usize,
@@ -992,6 +996,7 @@ fn optimize_cmd(args: OptimizeArgs) -> Result<()> {
         lr,
         curriculum_switch,
         grad_normalize,
+        grad_clip_median,
         cmaes_population,
         cmaes_sigma,
         sac_batch,
@@ -1044,6 +1049,7 @@ fn optimize_cmd(args: OptimizeArgs) -> Result<()> {
             lr,
             switch_epoch: curriculum_switch,
             normalize: grad_normalize,
+            clip_median: grad_clip_median,
             ..Default::default()
         },
         cmaes: optim::cma::CmaConfig {

@@ -211,17 +211,19 @@ impl Runner<'_> {
                 mean_square: [0.0; 5],
             })
             .collect();
+        let mut norms: Vec<Vec<f64>> = vec![Vec::new(); s.seeds];
         for epoch in 1..=s.epochs {
             let recs: Vec<Record> = states
                 .par_iter()
                 .enumerate()
                 .map(|(k, st)| self.rollout(Method::Grad, k, epoch - 1, st.theta, true))
                 .collect::<anyhow::Result<_>>()?;
-            for (st, r) in states.iter_mut().zip(&recs) {
+            for ((st, r), h) in states.iter_mut().zip(&recs).zip(&mut norms) {
                 let g = r
                     .outcome
                     .grad
                     .context("a grad rollout without its gradient")?;
+                let g = s.rmsprop.clip(g, epoch, h);
                 s.rmsprop.step(st, g, epoch);
             }
         }
