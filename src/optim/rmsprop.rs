@@ -116,11 +116,7 @@ impl RmsProp {
     pub fn step(&self, state: &mut RmsState, mut g: [f64; 5], epoch: usize) {
         let mask = curriculum_mask(epoch, self.switch_epoch);
         if self.normalize {
-            let norm = (0..5)
-                .filter(|&k| mask[k])
-                .map(|k| g[k] * g[k])
-                .sum::<f64>()
-                .sqrt();
+            let norm = masked_norm(&g, mask);
             if norm > 0.0 {
                 g = g.map(|x| x / norm);
             }
