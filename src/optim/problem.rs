@@ -127,6 +127,26 @@ impl Problem {
         (transported, target - transported)
     }
 
+    /// Runs `sim` (a fresh simulation of this problem, at step 0) through its whole horizon
+    /// with the backward pass of `loss`, and returns the loss and `∂loss/∂Θ` of the skill tool.
+    /// `sim` is left at its final state.
+    pub fn skill_gradient(
+        &self,
+        sim: &mut Simulation,
+        loss: &Loss,
+    ) -> Result<(f64, [f64; 5]), crate::error::AdjointError> {
+        let steps = sim.horizon;
+        let g = gradient(sim, steps, loss, Tape::Budget(self.tape_budget))?;
+        let name = &self.scene.colliders[self.tool].name;
+        let gt = g
+            .skills
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, g)| *g)
+            .expect("the skill tool has a skill gradient");
+        Ok((g.loss, gt))
+    }
+
     /// One rollout at Θ (clamped to [−1, 1] by the caller), with the gradient if asked.
     pub fn evaluate(
         &self,
@@ -141,16 +161,10 @@ impl Problem {
         let particles = sim.particle_count();
         let context = || format!("rollout at Θ = {theta:?}");
         let (loss, grad) = if with_grad {
-            let g = gradient(&mut sim, steps, &self.loss, Tape::Budget(self.tape_budget))
+            let (loss, g) = self
+                .skill_gradient(&mut sim, &self.loss)
                 .with_context(context)?;
-            let name = &self.scene.colliders[self.tool].name;
-            let gt = g
-                .skills
-                .iter()
-                .find(|(n, _)| n == name)
-                .map(|(_, g)| *g)
-                .expect("the skill tool has a skill gradient");
-            (g.loss, Some(gt))
+            (loss, Some(g))
         } else {
             sim.run(steps, |_| {}).with_context(context)?;
             let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
