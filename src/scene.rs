@@ -700,8 +700,12 @@ impl Scene {
 
     /// The cavity of the task's target cup, if the scene has a task.
     pub fn target_region(&self) -> Option<CupRegion> {
-        let t = self.task.as_ref()?;
-        let c = self.colliders.iter().find(|c| c.name == t.target)?;
+        self.cup_region(&self.task.as_ref()?.target)
+    }
+
+    /// The cavity of the collider named `name` at its start pose, if it is a cup.
+    pub fn cup_region(&self, name: &str) -> Option<CupRegion> {
+        let c = self.colliders.iter().find(|c| c.name == name)?;
         CupRegion::of(&c.shape, Scene::collider_pose(c))
     }
 
