@@ -14,12 +14,8 @@
 
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
-use powderlab::util::SplitMix64;
+use powderlab::study::{cosine, norm, secant_thetas};
 use rayon::prelude::*;
-
-fn norm(g: &[f64; 5]) -> f64 {
-    g.iter().map(|x| x * x).sum::<f64>().sqrt()
-}
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
@@ -58,11 +54,9 @@ fn main() -> anyhow::Result<()> {
         );
     }
 
-    let mut rng = SplitMix64(1234);
     let (mut cos_sum, mut agree) = (0.0, 0);
     println!("secants of half-width {h} at {samples} random Θ:");
-    for i in 0..samples {
-        let t0: [f64; 5] = std::array::from_fn(|_| rng.uniform_in(-0.8, 0.8));
+    for (i, t0) in secant_thetas(samples).into_iter().enumerate() {
         let jobs: Vec<(usize, f64)> = (0..5).flat_map(|k| [(k, h), (k, -h)]).collect();
         let (centre, shifted) = rayon::join(
             || p.evaluate(t0, true, false),
@@ -80,7 +74,7 @@ fn main() -> anyhow::Result<()> {
         let g = centre.grad.expect("asked for the gradient");
         let s: [f64; 5] =
             std::array::from_fn(|k| (shifted[2 * k] - shifted[2 * k + 1]) / (2.0 * h));
-        let c = (0..5).map(|k| g[k] * s[k]).sum::<f64>() / (norm(&g) * norm(&s));
+        let c = cosine(&g, &s);
         cos_sum += c;
         agree += (0..5).filter(|&k| g[k].signum() == s[k].signum()).count();
         println!(

@@ -12,16 +12,9 @@
 //! of the sampled gradients are what the README's skill-optimisation section discusses.
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
-use powderlab::study::parse_theta;
+use powderlab::study::{cosine, norm, parse_theta};
 use powderlab::util::SplitMix64;
 use rayon::prelude::*;
-
-fn norm(g: &[f64; 5]) -> f64 {
-    g.iter().map(|x| x * x).sum::<f64>().sqrt()
-}
-fn cos(a: &[f64; 5], b: &[f64; 5]) -> f64 {
-    (0..5).map(|k| a[k] * b[k]).sum::<f64>() / (norm(a) * norm(b))
-}
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();
@@ -64,18 +57,18 @@ fn main() -> anyhow::Result<()> {
         }
         println!(
             "  sample {i}: cos {:+.3} grad {:?}",
-            cos(g, &s),
+            cosine(g, &s),
             g.map(|x| (x * 100.0).round() / 100.0)
         );
     }
     println!(
         "mean: cos {:+.3} {:?}",
-        cos(&mean, &s),
+        cosine(&mean, &s),
         mean.map(|x| (x * 100.0).round() / 100.0)
     );
-    let mut norms: Vec<f64> = gs.iter().map(norm).collect();
+    let mut norms: Vec<f64> = gs.iter().map(|g| norm(g)).collect();
     norms.sort_by(f64::total_cmp);
-    let positive = gs.iter().filter(|g| cos(g, &s) > 0.0).count();
+    let positive = gs.iter().filter(|&g| cosine(g, &s) > 0.0).count();
     println!(
         "{positive}/{n} samples with a positive cosine; gradient norms: median {:.2}, largest {:.2}",
         norms[n / 2],

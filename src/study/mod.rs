@@ -25,7 +25,7 @@ pub mod plot;
 use crate::adjoint::tape::Loss;
 use crate::optim::problem::Problem;
 use crate::scene::Scene;
-use crate::util::{peak_rss_bytes, write_atomic};
+use crate::util::{peak_rss_bytes, write_atomic, SplitMix64};
 use crate::validate::{deposit_front, lube_runout, run_collapse, Collapse, COLLAPSE_SLAB_CELLS};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -200,6 +200,16 @@ pub fn along(theta: [f64; 5], u: &[f64; 5], s: f64) -> [f64; 5] {
     let mut t = theta;
     t.iter_mut().zip(u).for_each(|(t, u)| *t += s * u);
     t
+}
+
+/// The first `n` random Θ at which the diagnostic examples take secants: uniform in
+/// [−0.8, 0.8]⁵ from a fixed generator, so that `gradient_at_scale`'s point `k` and
+/// `gradient_by_region`'s `randK` are the same Θ.
+pub fn secant_thetas(n: usize) -> Vec<[f64; 5]> {
+    let mut rng = SplitMix64(1234);
+    (0..n)
+        .map(|_| std::array::from_fn(|_| rng.uniform_in(-0.8, 0.8)))
+        .collect()
 }
 
 /// Θ from the command line of the diagnostic examples: five comma-separated values.
@@ -525,8 +535,14 @@ fn rel(a: f64, b: f64) -> f64 {
     }
 }
 
-fn norm(v: &[f64]) -> f64 {
+/// Euclidean length.
+pub fn norm(v: &[f64]) -> f64 {
     v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// The cosine of the angle between `a` and `b` (NaN when either is zero).
+pub fn cosine(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>() / (norm(a) * norm(b))
 }
 
 /// Relative distance between two gradients, `‖a − b‖/‖b‖`.
