@@ -24,14 +24,12 @@
 //! kept on the spoon, one fewer falling back), which no derivative at Θ sees.
 
 use glam::DVec3;
-use powderlab::adjoint::loss::{CupRegion, Loss};
-use powderlab::adjoint::tape::{gradient, Tape};
+use powderlab::adjoint::loss::Loss;
 use powderlab::math::sdf::Shape;
 use powderlab::optim::problem::Problem;
 use powderlab::optim::theta_init;
 use powderlab::scene::Scene;
-use powderlab::study::parse_theta;
-use powderlab::util::SplitMix64;
+use powderlab::study::{cosine, norm, parse_theta, secant_thetas};
 use rayon::prelude::*;
 
 /// Height above the cups' cavity floor, in cells, under which a grain outside both cups counts
@@ -40,14 +38,6 @@ use rayon::prelude::*;
 const FLOOR_BAND_CELLS: f64 = 2.0;
 
 const GROUPS: [&str; 4] = ["target cup", "source cup", "spilled", "spoon/rim/air"];
-
-fn norm(g: &[f64; 5]) -> f64 {
-    g.iter().map(|x| x * x).sum::<f64>().sqrt()
-}
-
-fn cos(a: &[f64; 5], b: &[f64; 5]) -> f64 {
-    (0..5).map(|k| a[k] * b[k]).sum::<f64>() / (norm(a) * norm(b))
-}
 
 fn round2(g: &[f64; 5]) -> [f64; 5] {
     g.map(|x| (x * 100.0).round() / 100.0)
@@ -59,24 +49,9 @@ fn theta_arg(s: &str) -> anyhow::Result<[f64; 5]> {
     }
     if let Some(k) = s.strip_prefix("rand") {
         let k: usize = k.parse()?;
-        let mut rng = SplitMix64(1234);
-        let mut t = [0.0; 5];
-        for _ in 0..=k {
-            t = std::array::from_fn(|_| rng.uniform_in(-0.8, 0.8));
-        }
-        return Ok(t);
+        return Ok(secant_thetas(k + 1)[k]);
     }
     parse_theta(s)
-}
-
-fn cup(scene: &Scene, name: &str) -> anyhow::Result<CupRegion> {
-    let c = scene
-        .colliders
-        .iter()
-        .find(|c| c.name == name)
-        .ok_or_else(|| anyhow::anyhow!("no collider named {name}"))?;
-    CupRegion::of(&c.shape, Scene::collider_pose(c))
-        .ok_or_else(|| anyhow::anyhow!("{name} is not a cup"))
 }
 
 fn main() -> anyhow::Result<()> {
@@ -90,32 +65,38 @@ fn main() -> anyhow::Result<()> {
         anyhow::bail!("the scene's loss is not eq. 5 (SumDistance)");
     };
     let task = p.scene.task.as_ref().expect("checked in Problem::new");
-    let target_cup = cup(&p.scene, &task.target)?;
-    let source_name = p
+    let target_cup = p
+        .scene
+        .target_region()
+        .ok_or_else(|| anyhow::anyhow!("the target {} is not a cup", task.target))?;
+    let source_cup = p
         .scene
         .colliders
         .iter()
         .find(|c| c.name != task.target && matches!(c.shape, Shape::Cup { .. }))
-        .map(|c| c.name.clone())
+        .and_then(|c| p.scene.cup_region(&c.name))
         .ok_or_else(|| anyhow::anyhow!("no source cup"))?;
-    let source_cup = cup(&p.scene, &source_name)?;
     let floor_y = source_cup
         .pose
         .to_world(DVec3::new(0.0, source_cup.floor, 0.0))
         .y
         + FLOOR_BAND_CELLS * p.scene.simulation.dx;
+    // The final positions of each body's grains (grain j of a body is the same particle in
+    // every rollout).
+    let final_positions = |sim: &mut powderlab::sim::Simulation| -> Vec<Vec<DVec3>> {
+        sim.body_states().into_iter().map(|b| b.x).collect()
+    };
 
     for arg in &a[3..] {
         let t0 = theta_arg(arg)?;
         let jobs: Vec<(usize, f64)> = (0..5).flat_map(|k| [(k, h), (k, -h)]).collect();
-        let (state, shifted) = rayon::join(
+        // The whole gradient's rollout also gives Θ's final state, which sets the groups.
+        let (centre, shifted) = rayon::join(
             || -> anyhow::Result<_> {
                 let mut sim = p.simulation(t0, false)?;
-                let steps = sim.horizon;
-                sim.run(steps, |_| {})?;
-                let xs: Vec<Vec<DVec3>> = sim.body_states().into_iter().map(|b| b.x).collect();
-                let (transported, indicator) = p.indicator(&mut sim);
-                Ok((xs, transported, indicator))
+                let (_, whole) = p.skill_gradient(&mut sim, &p.loss)?;
+                let (_, indicator) = p.indicator(&mut sim);
+                Ok((whole, final_positions(&mut sim), indicator))
             },
             || {
                 jobs.par_iter()
@@ -125,14 +106,12 @@ fn main() -> anyhow::Result<()> {
                         let mut sim = p.simulation(t, false)?;
                         let steps = sim.horizon;
                         sim.run(steps, |_| {})?;
-                        let xs: Vec<DVec3> =
-                            sim.body_states().into_iter().flat_map(|b| b.x).collect();
-                        Ok(xs)
+                        Ok(final_positions(&mut sim))
                     })
-                    .collect::<anyhow::Result<Vec<Vec<DVec3>>>>()
+                    .collect::<anyhow::Result<Vec<Vec<Vec<DVec3>>>>>()
             },
         );
-        let ((xs, _, indicator), shifted) = (state?, shifted?);
+        let ((whole, xs, indicator), shifted) = (centre?, shifted?);
         let group = |x: DVec3| {
             if target_cup.inside(x) {
                 0
@@ -148,7 +127,8 @@ fn main() -> anyhow::Result<()> {
         // Θ − h·e_k (what a pathwise gradient can see) and those that change group.
         let (mut kept, mut switched, mut moved) = ([0.0; 5], [0.0; 5], [0usize; 5]);
         for k in 0..5 {
-            for (xp, xm) in shifted[2 * k].iter().zip(&shifted[2 * k + 1]) {
+            let minus = shifted[2 * k + 1].iter().flatten();
+            for (xp, xm) in shifted[2 * k].iter().flatten().zip(minus) {
                 let d = ((*xp - target).length() - (*xm - target).length()) / (2.0 * h);
                 if group(*xp) == group(*xm) {
                     kept[k] += d;
@@ -161,41 +141,25 @@ fn main() -> anyhow::Result<()> {
         let secant: [f64; 5] = std::array::from_fn(|k| kept[k] + switched[k]);
         let mut counts = [0usize; 4];
         xs.iter().flatten().for_each(|x| counts[group(*x)] += 1);
+        // Eq. 5's own ∂L/∂x at Θ, (x_j − t)/‖x_j − t‖, kept for one group's grains at a time.
+        let (_, dl_dx) = p.loss.eval(&xs);
         let parts = (0..GROUPS.len())
             .into_par_iter()
             .map(|gi| {
                 let w: Vec<Vec<DVec3>> = xs
                     .iter()
-                    .map(|b| {
-                        b.iter()
-                            .map(|&x| {
-                                let d = x - target;
-                                if group(x) == gi && d.length() > 0.0 {
-                                    d / d.length()
-                                } else {
-                                    DVec3::ZERO
-                                }
-                            })
+                    .zip(&dl_dx)
+                    .map(|(x, w)| {
+                        x.iter()
+                            .zip(w)
+                            .map(|(&x, &w)| if group(x) == gi { w } else { DVec3::ZERO })
                             .collect()
                     })
                     .collect();
                 let mut sim = p.simulation(t0, false)?;
-                let steps = sim.horizon;
-                let g = gradient(
-                    &mut sim,
-                    steps,
-                    &Loss::Linear(w),
-                    Tape::Budget(p.tape_budget),
-                )?;
-                let name = &p.scene.colliders[p.tool].name;
-                Ok(g.skills
-                    .iter()
-                    .find(|(n, _)| n == name)
-                    .map(|(_, g)| *g)
-                    .expect("the skill tool has a skill gradient"))
+                Ok(p.skill_gradient(&mut sim, &Loss::Linear(w))?.1)
             })
             .collect::<anyhow::Result<Vec<[f64; 5]>>>()?;
-        let whole = p.evaluate(t0, true, false)?.grad.expect("asked for it");
         let sum: [f64; 5] = std::array::from_fn(|k| parts.iter().map(|g| g[k]).sum());
         let gap = (0..5)
             .map(|k| (sum[k] - whole[k]).abs())
@@ -209,7 +173,7 @@ fn main() -> anyhow::Result<()> {
         );
         println!(
             "  whole   cos {:+.3} |g| {:9.2} {:?} (parts add up to it within {gap:.1e} of |g|)",
-            cos(&whole, &secant),
+            cosine(&whole, &secant),
             norm(&whole),
             round2(&whole)
         );
@@ -218,21 +182,21 @@ fn main() -> anyhow::Result<()> {
                 "  {:<14} {:5} grains  cos {:+.3} |g| {:9.2} {:?}",
                 GROUPS[gi],
                 counts[gi],
-                cos(g, &secant),
+                cosine(g, &secant),
                 norm(g),
                 round2(g)
             );
         }
         println!(
             "  all but spilled     cos {:+.3} |g| {:9.2} {:?}",
-            cos(&no_spill, &secant),
+            cosine(&no_spill, &secant),
             norm(&no_spill),
             round2(&no_spill)
         );
         println!(
             "  secant of the grains that keep their group {:?} (whole gradient's cos {:+.3})",
             round2(&kept),
-            cos(&whole, &kept)
+            cosine(&whole, &kept)
         );
         println!(
             "  secant of the grains that change group     {:?} ({moved:?} grains)",
