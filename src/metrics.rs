@@ -1,7 +1,7 @@
 //! Scene metrics: transported particles, mean height and energies.
 
-use crate::adjoint::loss::CupRegion;
 use crate::components::*;
+use crate::math::geometry::CupRegion;
 use crate::math::return_map::{hencky, hencky_energy};
 use crate::math::svd::{svd3_warm_group, LANES};
 use bevy_ecs::prelude::*;

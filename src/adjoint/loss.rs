@@ -17,79 +17,10 @@
 //!
 //! `|·|` and `‖·‖` use the subgradient 0 at 0.
 
-use crate::math::pose::Pose;
-use crate::math::sdf::Shape;
 use glam::DVec3;
 
-/// The cavity of a cup in the world: a pose and the cavity's inner radius, floor and rim heights
-/// (in the cup's frame, y up).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CupRegion {
-    pub pose: Pose,
-    pub inner_radius: f64,
-    pub floor: f64,
-    pub rim: f64,
-}
-
-#[inline(always)]
-fn logistic(z: f64) -> f64 {
-    // Written so neither branch overflows: exp of a non-positive number only.
-    if z >= 0.0 {
-        1.0 / (1.0 + (-z).exp())
-    } else {
-        let e = z.exp();
-        e / (1.0 + e)
-    }
-}
-
-impl CupRegion {
-    /// The cavity of a cup shape at a pose; `None` for other shapes.
-    pub fn of(shape: &Shape, pose: Pose) -> Option<CupRegion> {
-        match *shape {
-            Shape::Cup {
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                ..
-            } => Some(CupRegion {
-                pose,
-                inner_radius: outer_radius - wall_thickness,
-                floor: floor_thickness,
-                rim: height,
-            }),
-            _ => None,
-        }
-    }
-
-    /// The hard indicator: inside the cavity (above the floor, inside the inner wall, below
-    /// the rim). What the transport metrics count.
-    pub fn inside(&self, x: DVec3) -> bool {
-        let p = self.pose.to_local(x);
-        p.x.hypot(p.z) < self.inner_radius && p.y > self.floor && p.y < self.rim
-    }
-
-    /// The soft indicator `s(x) = σ((r_i − ρ)/w)·σ((y − y_floor)/w)·σ((y_rim − y)/w)` in the
-    /// cup's frame (`ρ` the distance from the axis, `σ` the logistic function), and its world
-    /// gradient. `s → 1` deep inside the cavity, `→ 0` far outside, `= 1/2` on a face.
-    pub fn soft(&self, x: DVec3, w: f64) -> (f64, DVec3) {
-        let p = self.pose.to_local(x);
-        let rho = p.x.hypot(p.z);
-        let a = logistic((self.inner_radius - rho) / w);
-        let b = logistic((p.y - self.floor) / w);
-        let c = logistic((self.rim - p.y) / w);
-        let s = a * b * c;
-        // σ' = σ(1 − σ).
-        let (da, db, dc) = (a * (1.0 - a) / w, b * (1.0 - b) / w, c * (1.0 - c) / w);
-        let grad_rho = if rho > 0.0 {
-            DVec3::new(p.x / rho, 0.0, p.z / rho)
-        } else {
-            DVec3::ZERO
-        };
-        let g_local = grad_rho * (-da * b * c) + DVec3::Y * (a * db * c - a * b * dc);
-        (s, self.pose.rotation * g_local)
-    }
-}
+pub use crate::math::geometry::CupRegion;
+use crate::scene::{LossSpec, Scene};
 
 /// The dosing loss's settings.
 #[derive(Clone, Debug, PartialEq)]
@@ -196,9 +127,43 @@ impl Loss {
     }
 }
 
+/// The loss a scene declares, or its default (see [`crate::scene::Scene::loss`]).
+pub fn scene_loss(scene: &Scene) -> Loss {
+    match scene.loss {
+        Some(LossSpec::MeanL1(t)) => Loss::MeanL1(DVec3::from(t)),
+        Some(LossSpec::SumDistance(t)) => Loss::SumDistance(DVec3::from(t)),
+        Some(LossSpec::Dosing { grams, width }) => Loss::Dosing(Dosing {
+            cup: scene
+                .target_region()
+                .expect("validated: a dosing loss has a task with a target cup"),
+            particle_mass: scene.particle_masses(),
+            target_mass: grams * 1e-3,
+            width: width.unwrap_or_else(|| {
+                scene
+                    .bodies
+                    .iter()
+                    .map(|b| scene.particle_spacing(b))
+                    .fold(scene.simulation.dx, f64::min)
+            }),
+        }),
+        None => Loss::SumDistance(loss_target(scene)),
+    }
+}
+
+/// The default loss target of a scene: the middle of the target cup's floor, else the middle of
+/// the domain's floor.
+pub fn loss_target(scene: &Scene) -> DVec3 {
+    if let Some(cup) = scene.target_region() {
+        return cup.pose.to_world(DVec3::new(0.0, cup.floor, 0.0));
+    }
+    let (lo, hi) = scene.domain();
+    DVec3::new(0.5 * (lo.x + hi.x), lo.y, 0.5 * (lo.z + hi.z))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::pose::Pose;
     use glam::DQuat;
 
     /// Central differences in f64 of smooth functions of O(1) size.

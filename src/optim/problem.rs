@@ -1,12 +1,12 @@
 //! The optimisation problem: a scene whose tool follows a skill, and one rollout at given skill
 //! parameters Θ (forward only, or with `∂L/∂Θ` from the adjoint pass).
 
+use crate::adjoint::loss::scene_loss;
 use crate::adjoint::tape::{gradient, Loss, Tape};
 use crate::error::FieldError;
-use crate::gradcheck::scene_loss;
 use crate::metrics::frame_metrics;
 use crate::scene::{ControlSpec, Scene, TargetValue};
-use crate::sim::{SimOptions, Simulation};
+use crate::sim::{Build, SimOptions, Simulation};
 use anyhow::Context;
 use std::time::Instant;
 
@@ -21,6 +21,9 @@ pub struct Problem {
     pub target: TargetValue,
     /// Memory budget of one backward pass's tape (bytes).
     pub tape_budget: usize,
+    /// The scene checked and built once (its particle fills and container contact tables);
+    /// every rollout reuses it with its own controls.
+    build: Build,
 }
 
 /// What one rollout gives.
@@ -79,7 +82,9 @@ impl Problem {
             )));
         };
         let loss = scene_loss(&scene);
+        let build = Build::new(&scene)?;
         Ok(Problem {
+            build,
             scene,
             tool,
             loss,
@@ -105,10 +110,18 @@ impl Problem {
         s
     }
 
-    /// Builds the simulation of Θ. `shared_pool` runs it in the caller's rayon pool.
+    /// Builds the simulation of Θ from the scene built once: only the tool's controls are new.
+    /// `shared_pool` runs it in the caller's rayon pool.
     pub fn simulation(&self, theta: [f64; 5], shared_pool: bool) -> anyhow::Result<Simulation> {
-        Ok(Simulation::new(
-            &self.scene_at(theta),
+        let scene = self.scene_at(theta);
+        let tool = &scene.colliders[self.tool];
+        let Some(ControlSpec::Skill(sk)) = &tool.control else {
+            unreachable!("checked in Problem::new")
+        };
+        let controls = sk.controls(scene.simulation.dt, Scene::tool_bottom(tool)).0;
+        let build = self.build.with_controls(&scene, self.tool, controls)?;
+        Ok(build.simulation(
+            scene,
             &SimOptions {
                 shared_pool,
                 ..Default::default()
@@ -137,13 +150,14 @@ impl Problem {
     ) -> Result<(f64, [f64; 5]), crate::error::AdjointError> {
         let steps = sim.horizon;
         let g = gradient(sim, steps, loss, Tape::Budget(self.tape_budget))?;
-        let name = &self.scene.colliders[self.tool].name;
-        let gt = g
-            .skills
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, g)| *g)
-            .expect("the skill tool has a skill gradient");
+        // The simulation's scene carries the rollout's Θ, which the skill's adjoint needs.
+        let tool = &sim.scene.colliders[self.tool];
+        let g_u = g
+            .tool_controls(&tool.name)
+            .expect("the skill tool has controls");
+        let gt = tool
+            .skill_gradient(sim.scene.simulation.dt, g_u)
+            .expect("checked in Problem::new: the tool has a skill");
         Ok((g.loss, gt))
     }
 

@@ -1,0 +1,76 @@
+//! Pure geometry of the scene's shapes that is not an SDF: the cavity of a cup and its soft
+//! indicator (with its gradient).
+
+use crate::math::pose::Pose;
+use crate::math::sdf::Shape;
+use glam::DVec3;
+
+/// The cavity of a cup in the world: a pose and the cavity's inner radius, floor and rim heights
+/// (in the cup's frame, y up).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CupRegion {
+    pub pose: Pose,
+    pub inner_radius: f64,
+    pub floor: f64,
+    pub rim: f64,
+}
+
+#[inline(always)]
+fn logistic(z: f64) -> f64 {
+    // Written so neither branch overflows: exp of a non-positive number only.
+    if z >= 0.0 {
+        1.0 / (1.0 + (-z).exp())
+    } else {
+        let e = z.exp();
+        e / (1.0 + e)
+    }
+}
+
+impl CupRegion {
+    /// The cavity of a cup shape at a pose; `None` for other shapes.
+    pub fn of(shape: &Shape, pose: Pose) -> Option<CupRegion> {
+        match *shape {
+            Shape::Cup {
+                outer_radius,
+                height,
+                wall_thickness,
+                floor_thickness,
+                ..
+            } => Some(CupRegion {
+                pose,
+                inner_radius: outer_radius - wall_thickness,
+                floor: floor_thickness,
+                rim: height,
+            }),
+            _ => None,
+        }
+    }
+
+    /// The hard indicator: inside the cavity (above the floor, inside the inner wall, below
+    /// the rim). What the transport metrics count.
+    pub fn inside(&self, x: DVec3) -> bool {
+        let p = self.pose.to_local(x);
+        p.x.hypot(p.z) < self.inner_radius && p.y > self.floor && p.y < self.rim
+    }
+
+    /// The soft indicator `s(x) = σ((r_i − ρ)/w)·σ((y − y_floor)/w)·σ((y_rim − y)/w)` in the
+    /// cup's frame (`ρ` the distance from the axis, `σ` the logistic function), and its world
+    /// gradient. `s → 1` deep inside the cavity, `→ 0` far outside, `= 1/2` on a face.
+    pub fn soft(&self, x: DVec3, w: f64) -> (f64, DVec3) {
+        let p = self.pose.to_local(x);
+        let rho = p.x.hypot(p.z);
+        let a = logistic((self.inner_radius - rho) / w);
+        let b = logistic((p.y - self.floor) / w);
+        let c = logistic((self.rim - p.y) / w);
+        let s = a * b * c;
+        // σ' = σ(1 − σ).
+        let (da, db, dc) = (a * (1.0 - a) / w, b * (1.0 - b) / w, c * (1.0 - c) / w);
+        let grad_rho = if rho > 0.0 {
+            DVec3::new(p.x / rho, 0.0, p.z / rho)
+        } else {
+            DVec3::ZERO
+        };
+        let g_local = grad_rho * (-da * b * c) + DVec3::Y * (a * db * c - a * b * dc);
+        (s, self.pose.rotation * g_local)
+    }
+}

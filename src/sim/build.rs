@@ -1,0 +1,244 @@
+//! Building the ECS world and the substep schedule from a prepared scene.
+//!
+//! [`Build`] holds what does not depend on the tools' controls: the prepared scene (its particle
+//! fills) and each static container's contact table with the grid nodes. A rollout for new
+//! controls ([`Build::with_controls`]) reuses both and only spawns a fresh world, so the
+//! optimiser's rollouts do not refill the powder or re-evaluate the containers' SDFs.
+
+use super::{SimOptions, Simulation};
+use crate::components::*;
+use crate::error::SceneError;
+use crate::scene::{ColliderKindSpec, Prepared, Scene};
+use crate::systems::{self, SubstepPlan};
+use bevy_ecs::prelude::*;
+use glam::{DMat3, DVec3};
+use std::sync::Arc;
+
+/// A scene ready to be spawned into worlds, any number of times.
+#[derive(Clone, Debug)]
+pub struct Build {
+    pub prepared: Prepared,
+    /// Static containers' contact tables, by scene index.
+    node_contacts: Arc<Vec<(usize, NodeContacts)>>,
+}
+
+/// The grid of a scene, with zeroed nodes.
+fn grid_of(scene: &Scene) -> Grid {
+    let s = &scene.simulation;
+    Grid::new(
+        DVec3::from(s.domain_min),
+        s.dx,
+        [s.cells.0, s.cells.1, s.cells.2],
+    )
+}
+
+impl Build {
+    /// Prepares the scene (every check) and computes its containers' contact tables.
+    pub fn new(scene: &Scene) -> Result<Build, SceneError> {
+        let prepared = scene.prepare()?;
+        let grid = grid_of(scene);
+        let dx = scene.simulation.dx;
+        let node_contacts = scene
+            .colliders
+            .iter()
+            .zip(&prepared.colliders)
+            .enumerate()
+            .filter(|(_, (c, _))| c.kind == ColliderKindSpec::Container)
+            .map(|(i, (c, p))| {
+                let pose = ColliderPose {
+                    pose: p.pose,
+                    ..Default::default()
+                };
+                (i, NodeContacts::build(&collider(c, i, dx), &pose, &grid))
+            })
+            .collect();
+        Ok(Build {
+            prepared,
+            node_contacts: Arc::new(node_contacts),
+        })
+    }
+
+    /// The same build with collider `i`'s controls replaced (see [`Prepared::with_controls`]).
+    pub fn with_controls(
+        &self,
+        scene: &Scene,
+        i: usize,
+        controls: Vec<[f64; 6]>,
+    ) -> Result<Build, SceneError> {
+        Ok(Build {
+            prepared: self.prepared.with_controls(scene, i, controls)?,
+            node_contacts: self.node_contacts.clone(),
+        })
+    }
+
+    /// Spawns a world at the scene's start and builds its schedule. `scene` is the scene this
+    /// build was made from (with the new controls' source, for a build with new controls).
+    pub fn simulation(&self, owned: Scene, opts: &SimOptions) -> Result<Simulation, SceneError> {
+        let scene = &owned;
+        let s = &scene.simulation;
+        let p = &self.prepared;
+        let grid = grid_of(scene);
+        let mut world = World::new();
+        for (i, (c, pc)) in scene.colliders.iter().zip(&p.colliders).enumerate() {
+            let mut e = world.spawn((
+                collider(c, i, s.dx),
+                ColliderPose {
+                    pose: pc.pose,
+                    ..Default::default()
+                },
+            ));
+            if pc.kind == ColliderKind::Tool {
+                e.insert(Control {
+                    per_step: pc.controls.clone(),
+                });
+            }
+        }
+        for (i, (b, pb)) in scene.bodies.iter().zip(p.bodies.iter()).enumerate() {
+            let np = pb.x.len();
+            let mut e = world.spawn((
+                Body {
+                    name: b.name.clone(),
+                    index: i,
+                    particle_mass: pb.particle_mass,
+                    particle_volume: pb.particle_volume,
+                    lame: pb.lame,
+                },
+                Position(pb.x.clone()),
+                Velocity(vec![pb.velocity; np]),
+                AffineVelocity(vec![DMat3::ZERO; np]),
+                DeformationGradient(vec![DMat3::IDENTITY; np]),
+                TrialDeformation(vec![DMat3::IDENTITY; np]),
+                SvdFactors {
+                    u: vec![DMat3::IDENTITY; np],
+                    s: vec![DVec3::ONE; np],
+                    v: vec![DMat3::IDENTITY; np],
+                },
+                P2gAffine(vec![DMat3::ZERO; np]),
+                ScatterOrder::default(),
+            ));
+            if pb.material.hardens() {
+                e.insert(Hardening(vec![0.0; np]));
+            }
+            pb.material.insert_into(&mut e);
+        }
+        let substeps = p.stability.substeps;
+        world.insert_resource(SimParams {
+            dt: s.dt,
+            substeps,
+            dt_sub: s.dt / substeps as f64,
+            gravity: DVec3::from(s.gravity),
+            empty_node_mass: if p.min_particle_mass.is_finite() {
+                s.empty_node_ratio * p.min_particle_mass
+            } else {
+                0.0
+            },
+        });
+        // Static containers' contact with the grid nodes, found once (a table per container).
+        let mut containers = world.query::<(Entity, &Collider)>();
+        let entities: Vec<(Entity, usize)> = containers
+            .iter(&world)
+            .filter(|(_, c)| c.kind == ColliderKind::Container)
+            .map(|(e, c)| (e, c.index))
+            .collect();
+        for (e, i) in entities {
+            let (_, table) = self
+                .node_contacts
+                .iter()
+                .find(|t| t.0 == i)
+                .expect("a table per container");
+            world.entity_mut(e).insert(table.clone());
+        }
+        world.insert_resource(grid);
+        world.insert_resource(DomainWalls {
+            cells: s.walls.cells,
+            mode: s.walls.contact,
+            friction: s.walls.friction,
+        });
+        world.insert_resource(Clock::default());
+        world.insert_resource(Health::default());
+
+        let plan = SubstepPlan {
+            materials: p.materials_used.clone(),
+            has_tools: scene
+                .colliders
+                .iter()
+                .any(|c| c.kind == ColliderKindSpec::Tool),
+            has_colliders: !scene.colliders.is_empty(),
+            particle_contact: scene.colliders.iter().any(|c| c.particle_contact),
+        };
+        let internal = |message: String| SceneError::Parse {
+            file: scene.path.clone(),
+            line: 1,
+            col: 1,
+            message,
+        };
+        let mut schedule = systems::build_substep_schedule(&plan);
+        schedule.initialize(&mut world).map_err(|e| {
+            internal(format!(
+                "internal: the substep schedule does not build: {e:?}"
+            ))
+        })?;
+        let stage_schedules = opts
+            .stage_timers
+            .then(|| systems::build_stage_schedules(&plan));
+        if opts.stage_timers {
+            world.insert_resource(StageTimers {
+                enabled: true,
+                ..Default::default()
+            });
+        }
+        let threads = opts.threads.unwrap_or(s.threads);
+        if threads > crate::scene::MAX_THREADS && !opts.shared_pool {
+            // The scene file and the CLI are checked where they are read; this is a caller in
+            // code. (`--threads 100000`, before any bound, had started 15,589 threads after 14
+            // minutes without finishing a step.)
+            return Err(SceneError::Invalid {
+                file: scene.path.clone(),
+                line: 1,
+                col: 1,
+                field: "SimOptions::threads (set in code, not in this file)".into(),
+                value: threads.to_string(),
+                expected: format!("<= {} (0 uses all cores)", crate::scene::MAX_THREADS),
+            });
+        }
+        let pool = if opts.shared_pool {
+            None
+        } else {
+            Some(
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .map_err(|e| internal(format!("cannot start {threads} worker threads: {e}")))?,
+            )
+        };
+        Ok(Simulation {
+            world,
+            schedule,
+            stage_schedules,
+            pool,
+            plan,
+            stability: p.stability.clone(),
+            horizon: p.horizon,
+            scene: owned,
+        })
+    }
+}
+
+/// The `Collider` component of scene collider `i`.
+fn collider(c: &crate::scene::ColliderSpec, i: usize, dx: f64) -> Collider {
+    Collider {
+        name: c.name.clone(),
+        index: i,
+        kind: match c.kind {
+            ColliderKindSpec::Tool => ColliderKind::Tool,
+            ColliderKindSpec::Container => ColliderKind::Container,
+        },
+        shape: c.shape.clone(),
+        friction: c.friction,
+        contact: c.contact,
+        band: c.band_cells * dx,
+        soft_band: c.soft_band,
+        bounding_radius: c.shape.bounding_radius(),
+        particle_contact: c.particle_contact,
+    }
+}
