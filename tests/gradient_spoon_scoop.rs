@@ -4,7 +4,6 @@
 
 use glam::DVec3;
 use powderlab::adjoint::tape::{gradient, Loss, Tape};
-use powderlab::materials::MaterialSpec;
 use powderlab::scene::{ControlSpec, Scene};
 
 mod common;
@@ -86,13 +85,17 @@ fn skill_and_material_gradients_through_the_spoon() {
         };
         close(
             (edit(eps) - edit(-eps)) / (2.0 * eps),
-            g.skills[0].1[k],
+            scene.skill_gradients(&g.controls)[0].1[k],
             &format!("dL/dtheta[{k}]"),
         );
     }
     let mat = |f: &dyn Fn(&mut powderlab::materials::drucker_prager::DruckerPrager)| {
         let mut s = scene.clone();
-        if let Some(MaterialSpec::DruckerPrager(m)) = s.materials.get_mut("powder") {
+        if let Some(m) = s
+            .materials
+            .get_mut("powder")
+            .and_then(|m| m.get_mut::<powderlab::materials::drucker_prager::DruckerPrager>())
+        {
             f(m);
         }
         loss(&s)
@@ -100,13 +103,13 @@ fn skill_and_material_gradients_through_the_spoon() {
     let h = 4e-3;
     close(
         (mat(&|m| m.youngs_modulus += h) - mat(&|m| m.youngs_modulus -= h)) / (2.0 * h),
-        g.material[0].youngs_modulus,
+        g.material_gradient(0, "youngs_modulus").unwrap(),
         "dL/dE",
     );
     let h = 1e-6;
     close(
         (mat(&|m| m.friction_deg += h) - mat(&|m| m.friction_deg -= h)) / (2.0 * h),
-        g.material[0].friction_deg,
+        g.material_gradient(0, "friction_deg").unwrap(),
         "dL/dphi",
     );
 }

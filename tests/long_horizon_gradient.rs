@@ -6,8 +6,8 @@
 //! `cargo test --release --test long_horizon_gradient -- --ignored --nocapture`
 
 use glam::DVec3;
+use powderlab::adjoint::loss::scene_loss;
 use powderlab::adjoint::tape::{gradient, Tape};
-use powderlab::gradcheck::scene_loss;
 
 mod common;
 
@@ -42,7 +42,7 @@ fn check(file: &str) {
                 .map(|v| v.length_squared())
                 .sum::<f64>()
                 .sqrt();
-        let theta = g.skills[0].1;
+        let theta = scene.skill_gradients(&g.controls)[0].1;
         let th: f64 = theta.iter().map(|x| x * x).sum::<f64>().sqrt();
         let ctrl: f64 = g.controls[0]
             .1
@@ -54,7 +54,7 @@ fn check(file: &str) {
         println!(
             "{steps} steps: loss {:.6e}, |dL/dv0| {v0:.4e}, |dL/dTheta| {th:.4e} {theta:?}, |dL/du| {ctrl:.4e}, |dL/dE| {:.4e}, tape {:.1} MB (k = {}), peak RSS {:.1} MB, {:.1} s",
             g.loss,
-            g.material[0].youngs_modulus.abs(),
+            g.material_gradient(0, "youngs_modulus").unwrap().abs(),
             g.tape_bytes as f64 / 1e6,
             g.checkpoint_every,
             powderlab::util::peak_rss_bytes() as f64 / 1e6,

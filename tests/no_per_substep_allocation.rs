@@ -75,8 +75,8 @@ fn backward_bytes(steps: usize) -> (usize, usize) {
         },
     )
     .unwrap();
-    let snapshot = powderlab::adjoint::tape::snapshot(&mut sim.world).bytes();
-    let loss = powderlab::gradcheck::scene_loss(&sc);
+    let snapshot = powderlab::adjoint::checkpoint::snapshot(&mut sim.world).bytes();
+    let loss = powderlab::adjoint::loss::scene_loss(&sc);
     let b0 = BYTES.load(Ordering::SeqCst);
     let tape = powderlab::adjoint::tape::Tape::Every(steps);
     powderlab::adjoint::tape::gradient(&mut sim, steps, &loss, tape).unwrap();
