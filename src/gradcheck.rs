@@ -6,11 +6,10 @@
 //! scalar directions: a uniform shift of all initial velocities or positions along an axis,
 //! each material's E, ν and friction angle, each collider's friction, and gravity's y.
 
-use crate::adjoint::loss::Dosing;
+use crate::adjoint::loss::scene_loss;
 use crate::adjoint::tape::{gradient, Loss, Tape};
 use crate::components::{Position, Velocity};
-use crate::materials::MaterialSpec;
-use crate::scene::{LossSpec, Scene};
+use crate::scene::Scene;
 use crate::sim::{SimOptions, Simulation};
 use glam::DVec3;
 use serde::Serialize;
@@ -48,39 +47,6 @@ pub struct Report {
     pub tape_bytes: usize,
     pub forward_s: f64,
     pub forward_backward_s: f64,
-}
-
-/// The loss a scene declares, or its default (see [`crate::scene::Scene::loss`]).
-pub fn scene_loss(scene: &Scene) -> Loss {
-    match scene.loss {
-        Some(LossSpec::MeanL1(t)) => Loss::MeanL1(DVec3::from(t)),
-        Some(LossSpec::SumDistance(t)) => Loss::SumDistance(DVec3::from(t)),
-        Some(LossSpec::Dosing { grams, width }) => Loss::Dosing(Dosing {
-            cup: scene
-                .target_region()
-                .expect("validated: a dosing loss has a task with a target cup"),
-            particle_mass: scene.particle_masses(),
-            target_mass: grams * 1e-3,
-            width: width.unwrap_or_else(|| {
-                scene
-                    .bodies
-                    .iter()
-                    .map(|b| scene.particle_spacing(b))
-                    .fold(scene.simulation.dx, f64::min)
-            }),
-        }),
-        None => Loss::SumDistance(loss_target(scene)),
-    }
-}
-
-/// The default loss target of a scene: the middle of the target cup's floor, else the middle of
-/// the domain's floor.
-pub fn loss_target(scene: &Scene) -> DVec3 {
-    if let Some(cup) = scene.target_region() {
-        return cup.pose.to_world(DVec3::new(0.0, cup.floor, 0.0));
-    }
-    let (lo, hi) = scene.domain();
-    DVec3::new(0.5 * (lo.x + hi.x), lo.y, 0.5 * (lo.z + hi.z))
 }
 
 fn forward_loss(
@@ -205,54 +171,19 @@ pub fn run(
             if users.is_empty() {
                 continue;
             }
-            let sum = |f: &dyn Fn(&crate::components::MaterialAdj) -> f64| {
-                users.iter().map(|&i| f(&g.material[i])).sum::<f64>()
-            };
-            let (e, is_dp) = match spec {
-                MaterialSpec::DruckerPrager(m) => (m.youngs_modulus, true),
-                MaterialSpec::Elastic(m) => (m.youngs_modulus, false),
-            };
-            type Edit = Box<dyn Fn(&mut MaterialSpec, f64)>;
-            let mut params: Vec<(&str, f64, f64, Edit)> = vec![
-                (
-                    "youngs_modulus",
-                    sum(&|m| m.youngs_modulus),
-                    1e-6 * e,
-                    Box::new(|s, d| match s {
-                        MaterialSpec::DruckerPrager(m) => m.youngs_modulus += d,
-                        MaterialSpec::Elastic(m) => m.youngs_modulus += d,
-                    }),
-                ),
-                (
-                    "poisson_ratio",
-                    sum(&|m| m.poisson_ratio),
-                    1e-6,
-                    Box::new(|s, d| match s {
-                        MaterialSpec::DruckerPrager(m) => m.poisson_ratio += d,
-                        MaterialSpec::Elastic(m) => m.poisson_ratio += d,
-                    }),
-                ),
-            ];
-            if is_dp {
-                params.push((
-                    "friction_deg",
-                    sum(&|m| m.friction_deg),
-                    1e-6,
-                    Box::new(|s, d| {
-                        if let MaterialSpec::DruckerPrager(m) = s {
-                            m.friction_deg += d
-                        }
-                    }),
-                ));
-            }
-            for (pname, ad, eps, edit) in params {
+            for (k, param) in spec.params().iter().enumerate() {
+                let ad: f64 = users.iter().map(|&i| g.material[i].0[k]).sum();
+                let value = spec.param(k);
+                let eps = param.fd_step.at(value);
                 let mut sp = scene.clone();
-                edit(sp.materials.get_mut(mname).expect("present"), eps);
+                sp.materials
+                    .insert(mname.clone(), spec.with_param(k, value + eps));
                 let mut sm = scene.clone();
-                edit(sm.materials.get_mut(mname).expect("present"), -eps);
+                sm.materials
+                    .insert(mname.clone(), spec.with_param(k, value - eps));
                 let p = forward_loss(&sp, steps, threads, DVec3::ZERO, DVec3::ZERO, &loss)?;
                 let m = forward_loss(&sm, steps, threads, DVec3::ZERO, DVec3::ZERO, &loss)?;
-                push(format!("materials.{mname}.{pname}"), ad, p, m, eps);
+                push(format!("materials.{mname}.{}", param.name), ad, p, m, eps);
             }
         }
     }
@@ -314,7 +245,7 @@ pub fn run(
         // Θ of skill-driven tools; ε is small enough that no phase's step count changes (a
         // change would be a jump the straight-through gradient does not see).
         let eps = 1e-7;
-        for (name, gt) in &g.skills {
+        for (name, gt) in &scene.skill_gradients(&g.controls) {
             let i = scene
                 .colliders
                 .iter()

@@ -11,6 +11,7 @@ use powderlab::adjoint::grid_collision::WallInputVelocity;
 use powderlab::adjoint::NonFiniteSeen;
 use powderlab::components::*;
 use powderlab::materials::drucker_prager::DruckerPrager;
+use powderlab::materials::Material;
 use powderlab::systems;
 
 /// f64 central differences with ε = 1e-6 resolve these smooth maps to ~1e-9; the adjoint must

@@ -19,7 +19,7 @@ fn the_dosing_scene_is_the_default_scene_with_the_dosing_loss() {
     };
     let task = dosing.task.as_ref().expect("a task");
     assert_eq!(task.target_value, TargetValue::Grams(grams));
-    match powderlab::gradcheck::scene_loss(&dosing) {
+    match powderlab::adjoint::loss::scene_loss(&dosing) {
         Loss::Dosing(d) => assert_eq!(d.target_mass, grams * 1e-3),
         _ => panic!("expected the dosing loss"),
     }

@@ -111,19 +111,11 @@ pub fn constitutive_model_adjoint<M: Material>(
                         seen,
                         gc[j].is_finite() && gs[j].is_finite() && gft[j].is_finite(),
                     );
-                    *pm = add_material(*pm, &out.g_material);
+                    *pm = pm.add(&out.g_material);
                     ga[j] = DMat3::ZERO;
                     gf[j] = DMat3::ZERO;
                 }
             });
-        *g_mat = partial.iter().fold(*g_mat, add_material);
-    }
-}
-
-fn add_material(a: MaterialAdj, b: &MaterialAdj) -> MaterialAdj {
-    MaterialAdj {
-        youngs_modulus: a.youngs_modulus + b.youngs_modulus,
-        poisson_ratio: a.poisson_ratio + b.poisson_ratio,
-        friction_deg: a.friction_deg + b.friction_deg,
+        *g_mat = partial.iter().fold(*g_mat, |a, b| a.add(b));
     }
 }

@@ -64,12 +64,19 @@ impl SubstepStart {
     }
 }
 
-/// `∂L/∂E`, `∂L/∂ν`, `∂L/∂φ` (per degree) of a body's material.
+/// The most differentiable parameters a material declares (`Material::PARAMS`).
+pub const MAX_MATERIAL_PARAMS: usize = 4;
+
+/// The gradient with respect to a body's material parameters, in the order the material
+/// declares them (`Material::PARAMS`; Drucker–Prager: `∂L/∂E`, `∂L/∂ν`, `∂L/∂φ` per degree).
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
-pub struct MaterialAdj {
-    pub youngs_modulus: f64,
-    pub poisson_ratio: f64,
-    pub friction_deg: f64,
+pub struct MaterialAdj(pub [f64; MAX_MATERIAL_PARAMS]);
+
+impl MaterialAdj {
+    /// Entry by entry `self + other`.
+    pub fn add(self, other: &MaterialAdj) -> MaterialAdj {
+        MaterialAdj(std::array::from_fn(|i| self.0[i] + other.0[i]))
+    }
 }
 
 /// Adjoints of the grid fields. `mass` and `momentum` are set by the P2G adjoint from

@@ -1,8 +1,7 @@
 //! Drucker–Prager sand: StVK in Hencky strain with the Klár et al. 2016 return mapping and
 //! optional hardening. The maths is in `crate::math::return_map`.
 
-use super::{check_range, Material, Saved, UpdateAdj, Updated};
-use crate::components::MaterialAdj;
+use super::{check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated};
 use crate::error::FieldError;
 use crate::math::return_map::{
     dp_alpha, dp_alpha_adj, dp_project, dp_project_adj, hardened_friction_deg, hencky, hencky_adj,
@@ -99,7 +98,7 @@ impl DruckerPrager {
     }
 
     /// Precomputes μ, λ and α; called once when the body is built.
-    pub fn prepared(mut self) -> Self {
+    fn with_cache(mut self) -> Self {
         let (mu, lambda) = lame(self.youngs_modulus, self.poisson_ratio);
         let (e, nu) = (self.youngs_modulus, self.poisson_ratio);
         let (d_mu_de, d_mu_dnu) = lame_adj(e, nu, 1.0, 0.0);
@@ -117,6 +116,35 @@ impl DruckerPrager {
 
 impl Material for DruckerPrager {
     const NAME: &'static str = "drucker_prager";
+    const TAG: &'static str = "DruckerPrager";
+    const PARAMS: &'static [Param] = &[
+        Param {
+            name: "youngs_modulus",
+            fd_step: FdStep::Relative(1e-6),
+        },
+        Param {
+            name: "poisson_ratio",
+            fd_step: FdStep::Absolute(1e-6),
+        },
+        Param {
+            name: "friction_deg",
+            fd_step: FdStep::Absolute(1e-6),
+        },
+    ];
+
+    fn param(&self, i: usize) -> f64 {
+        [self.youngs_modulus, self.poisson_ratio, self.friction_deg][i]
+    }
+    fn set_param(&mut self, i: usize, value: f64) {
+        *[
+            &mut self.youngs_modulus,
+            &mut self.poisson_ratio,
+            &mut self.friction_deg,
+        ][i] = value;
+    }
+    fn prepared(&self) -> Self {
+        self.clone().with_cache()
+    }
 
     fn density(&self) -> f64 {
         self.density
@@ -252,11 +280,11 @@ impl DruckerPrager {
             sigma_new: Some(p.sigma_new),
             tau: p.tau,
             g_sigma: hencky_adj(sigma, g_eps),
-            g_material: MaterialAdj {
-                youngs_modulus: g_mu * mu_e + g_lambda * lambda_e,
-                poisson_ratio: g_mu * mu_nu + g_lambda * lambda_nu,
-                friction_deg: g_alpha * c.d_alpha,
-            },
+            g_material: material_adj(&[
+                g_mu * mu_e + g_lambda * lambda_e,
+                g_mu * mu_nu + g_lambda * lambda_nu,
+                g_alpha * c.d_alpha,
+            ]),
         }
     }
 }
@@ -312,19 +340,19 @@ mod tests {
             let h = 1e-3;
             close(
                 (with(&|x| x.youngs_modulus += h) - with(&|x| x.youngs_modulus -= h)) / (2.0 * h),
-                g_m.youngs_modulus,
+                g_m.0[0],
                 "E",
             );
             close(
                 (with(&|x| x.poisson_ratio += FD_EPS) - with(&|x| x.poisson_ratio -= FD_EPS))
                     / (2.0 * FD_EPS),
-                g_m.poisson_ratio,
+                g_m.0[1],
                 "ν",
             );
             close(
                 (with(&|x| x.friction_deg += FD_EPS) - with(&|x| x.friction_deg -= FD_EPS))
                     / (2.0 * FD_EPS),
-                g_m.friction_deg,
+                g_m.0[2],
                 "φ",
             );
         }
@@ -362,7 +390,7 @@ mod tests {
                     .map(f64::to_bits)
                     .collect();
                 let g = u.g_material;
-                v.extend([g.youngs_modulus, g.poisson_ratio, g.friction_deg].map(f64::to_bits));
+                v.extend(g.0.map(f64::to_bits));
                 v
             };
             assert_eq!(bits(&a), bits(&b), "σ {sigma:?}");

@@ -1,7 +1,6 @@
 //! Elastic solid: StVK in Hencky strain, no plasticity (no return mapping runs).
 
-use super::{check_range, Material, UpdateAdj};
-use crate::components::MaterialAdj;
+use super::{check_range, material_adj, FdStep, Material, Param, UpdateAdj};
 use crate::error::FieldError;
 use crate::math::return_map::{
     hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj, lame, lame_adj,
@@ -33,6 +32,24 @@ fn default_poisson() -> f64 {
 
 impl Material for Elastic {
     const NAME: &'static str = "elastic";
+    const TAG: &'static str = "Elastic";
+    const PARAMS: &'static [Param] = &[
+        Param {
+            name: "youngs_modulus",
+            fd_step: FdStep::Relative(1e-6),
+        },
+        Param {
+            name: "poisson_ratio",
+            fd_step: FdStep::Absolute(1e-6),
+        },
+    ];
+
+    fn param(&self, i: usize) -> f64 {
+        [self.youngs_modulus, self.poisson_ratio][i]
+    }
+    fn set_param(&mut self, i: usize, value: f64) {
+        *[&mut self.youngs_modulus, &mut self.poisson_ratio][i] = value;
+    }
 
     fn density(&self) -> f64 {
         self.density
@@ -71,11 +88,7 @@ impl Material for Elastic {
             sigma_new: None,
             tau: kirchhoff_principal(eps, mu, lambda),
             g_sigma: hencky_adj(sigma, g_eps),
-            g_material: MaterialAdj {
-                youngs_modulus: g_e,
-                poisson_ratio: g_nu,
-                friction_deg: 0.0,
-            },
+            g_material: material_adj(&[g_e, g_nu]),
         }
     }
 }
@@ -138,15 +151,15 @@ mod tests {
             };
             close(
                 (with(FD_EPS_E, 0.0) - with(-FD_EPS_E, 0.0)) / (2.0 * FD_EPS_E),
-                out.g_material.youngs_modulus,
+                out.g_material.0[0],
                 "E",
             );
             close(
                 (with(0.0, FD_EPS) - with(0.0, -FD_EPS)) / (2.0 * FD_EPS),
-                out.g_material.poisson_ratio,
+                out.g_material.0[1],
                 "ν",
             );
-            assert_eq!(out.g_material.friction_deg, 0.0);
+            assert_eq!(out.g_material.0[2], 0.0);
         }
     }
 }

@@ -1,27 +1,83 @@
 //! Material plug-ins.
 //!
-//! A material is a component type implementing [`Material`]. The constitutive stage is generic
-//! over it (`systems::constitutive::constitutive_model::<M>`) and one instance is scheduled per
-//! material that a scene uses, so a scene with only elastic bodies runs no return mapping.
+//! A material is a component type implementing [`Material`]: its parameters (with serde, as a
+//! scene writes them), its constitutive update in principal space and that update's adjoint,
+//! and the list of its differentiable parameters. The constitutive stage is generic over it
+//! (`systems::constitutive::constitutive_model::<M>`) and one instance is scheduled per material
+//! that a scene uses, so a scene with only elastic bodies runs no return mapping.
 //!
-//! To add a material: write `src/materials/<name>.rs` with a type implementing [`Material`]
-//! (and `Serialize`/`Deserialize` for its parameters), then add one line to the
-//! `register_materials!` list below. Nothing else changes.
+//! To add a material to powderlab: write `src/materials/<name>.rs` with a type implementing
+//! [`Material`], then add one line to the `builtin_materials!` list in [`registry`]. A program
+//! that uses powderlab as a library calls [`register`]`::<M>()` instead, and its scenes name
+//! the material by [`Material::TAG`] (`tests/extension_points.rs` does this with a Neo-Hookean
+//! solid).
 
 pub mod drucker_prager;
 pub mod elastic;
+pub mod registry;
 
+pub use registry::{register, MaterialSpec};
+
+use crate::components::MaterialAdj;
 use crate::error::FieldError;
 use bevy_ecs::prelude::*;
-use bevy_ecs::schedule::ScheduleConfigs;
-use bevy_ecs::system::ScheduleSystem;
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
+use serde::de::DeserializeOwned;
+use serde::Serialize;
+
+/// How a gradient check perturbs a parameter: by a fraction of its value, or by an amount.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FdStep {
+    Relative(f64),
+    Absolute(f64),
+}
+
+impl FdStep {
+    /// The step at `value`.
+    pub fn at(self, value: f64) -> f64 {
+        match self {
+            FdStep::Relative(r) => r * value,
+            FdStep::Absolute(a) => a,
+        }
+    }
+}
+
+/// A differentiable parameter of a material: its field name in the scene and its
+/// finite-difference step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Param {
+    pub name: &'static str,
+    pub fd_step: FdStep,
+}
 
 /// A constitutive model, evaluated per particle in principal (singular-value) space.
-pub trait Material: Component + Clone + Send + Sync + 'static {
+pub trait Material:
+    Component
+    + Clone
+    + PartialEq
+    + std::fmt::Debug
+    + Serialize
+    + DeserializeOwned
+    + Send
+    + Sync
+    + 'static
+{
     /// Name used in logs and in the schedule listing.
     const NAME: &'static str;
+    /// Name a scene file gives it: `TAG((parameters...))`.
+    const TAG: &'static str;
+    /// The differentiable parameters, in the order of [`MaterialAdj`]'s entries (at most
+    /// [`MAX_MATERIAL_PARAMS`]).
+    const PARAMS: &'static [Param];
+    /// The value of parameter `i` of [`Material::PARAMS`].
+    fn param(&self, i: usize) -> f64;
+    /// Sets parameter `i` of [`Material::PARAMS`].
+    fn set_param(&mut self, i: usize, value: f64);
+    /// The material ready to run: what it derives from its parameters computed once, when a
+    /// body is built. By default the material itself.
+    fn prepared(&self) -> Self {
+        self.clone()
+    }
     /// Density (kg/m³).
     fn density(&self) -> f64;
     /// Lamé parameters (μ, λ) in Pa, for the stability guard.
@@ -77,70 +133,8 @@ pub struct UpdateAdj {
     pub tau: DVec3,
     /// `∂L/∂σ`.
     pub g_sigma: DVec3,
-    /// The material-parameter gradient.
-    pub g_material: crate::components::MaterialAdj,
-}
-
-macro_rules! register_materials {
-    ($($variant:ident => $ty:ty),* $(,)?) => {
-        /// A material as written in a scene file: the plug-in's name and its parameters.
-        #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-        pub enum MaterialSpec {
-            $($variant($ty),)*
-        }
-
-        impl MaterialSpec {
-            pub fn name(&self) -> &'static str {
-                match self { $(Self::$variant(_) => <$ty as Material>::NAME,)* }
-            }
-            pub fn density(&self) -> f64 {
-                match self { $(Self::$variant(m) => m.density(),)* }
-            }
-            pub fn lame(&self) -> (f64, f64) {
-                match self { $(Self::$variant(m) => m.lame(),)* }
-            }
-            pub fn hardens(&self) -> bool {
-                match self { $(Self::$variant(m) => m.hardens(),)* }
-            }
-            pub fn validate(&self) -> Result<(), FieldError> {
-                match self { $(Self::$variant(m) => m.validate(),)* }
-            }
-            /// Attaches the material component to a body entity.
-            pub fn insert_into(&self, entity: &mut EntityWorldMut) {
-                match self { $(Self::$variant(m) => { entity.insert(m.clone()); })* }
-            }
-            /// The constitutive system for this material.
-            pub fn constitutive_system(&self) -> ScheduleConfigs<ScheduleSystem> {
-                match self {
-                    $(Self::$variant(_) => {
-                        crate::systems::constitutive::constitutive_model::<$ty>.into_configs()
-                    })*
-                }
-            }
-            /// The adjoint of the constitutive system for this material.
-            pub fn constitutive_adjoint_system(&self) -> ScheduleConfigs<ScheduleSystem> {
-                match self {
-                    $(Self::$variant(_) => {
-                        crate::adjoint::constitutive::constitutive_model_adjoint::<$ty>.into_configs()
-                    })*
-                }
-            }
-            /// A key that is equal for two specs exactly when they use the same plug-in.
-            pub fn plugin_index(&self) -> usize {
-                let mut i = 0usize;
-                $(
-                    if matches!(self, Self::$variant(_)) { return i; }
-                    i += 1;
-                )*
-                i
-            }
-        }
-    };
-}
-
-register_materials! {
-    DruckerPrager => drucker_prager::DruckerPrager,
-    Elastic => elastic::Elastic,
+    /// The material-parameter gradient, in the order of [`Material::PARAMS`].
+    pub g_material: MaterialAdj,
 }
 
 /// Checks `lo <= value <= hi` (or the open variants the closure encodes) for a field.
@@ -155,4 +149,11 @@ pub(crate) fn check_range(
     } else {
         Err(FieldError::new(field, value.to_string(), expected))
     }
+}
+
+/// `MaterialAdj` with the given leading entries (the rest zero).
+pub fn material_adj(values: &[f64]) -> MaterialAdj {
+    let mut m = MaterialAdj::default();
+    m.0[..values.len()].copy_from_slice(values);
+    m
 }
