@@ -1,4 +1,4 @@
-//! Headless Rerun recording (DESIGN §7).
+//! Headless Rerun recording (docs/design.md §7).
 //!
 //! Entities:
 //! - `world/powder/<body>`: `Points3D` coloured by speed;
@@ -14,7 +14,7 @@
 //! which Rerun still opens.
 
 use crate::components::*;
-use crate::mesh::shape_mesh;
+
 use crate::metrics::{frame_metrics, FrameMetrics};
 use crate::util::partial_path;
 use bevy_ecs::prelude::*;
@@ -86,7 +86,7 @@ impl Recorder {
         let mut cs: Vec<_> = q.iter(world).cloned().collect();
         cs.sort_by_key(|c| c.index);
         for c in &cs {
-            let m = shape_mesh(&c.shape);
+            let m = c.shape.mesh();
             let colour = match c.kind {
                 ColliderKind::Tool => [200, 200, 210, 255],
                 ColliderKind::Container => [150, 170, 200, 140],

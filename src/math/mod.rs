@@ -5,7 +5,9 @@
 //! (see `crate::adjoint`).
 
 pub mod contact;
+pub mod geometry;
 pub mod kernel;
+pub mod mesh;
 pub mod pose;
 pub mod return_map;
 pub mod sdf;

@@ -1,7 +1,6 @@
-//! Triangle meshes of the analytic shapes, for recordings. Shapes of revolution (about local y)
-//! are built from a 2-D profile; the box and the spoon handle directly.
+//! Triangle meshes for recordings, and the pieces the shapes build theirs from
+//! (`Shape::mesh`): shapes of revolution (about local y) from a 2-D profile, a box directly.
 
-use crate::math::sdf::{spoon_rim_and_handle, Shape};
 use glam::{DQuat, DVec3};
 
 /// An indexed triangle mesh in a shape's local frame.
@@ -12,14 +11,16 @@ pub struct Mesh {
 }
 
 impl Mesh {
-    fn append(&mut self, other: Mesh) {
+    /// Adds `other`'s triangles.
+    pub fn append(&mut self, other: Mesh) {
         let off = self.vertices.len() as u32;
         self.vertices.extend(other.vertices);
         self.triangles
             .extend(other.triangles.into_iter().map(|t| t.map(|i| i + off)));
     }
 
-    fn transformed(mut self, rot: DQuat, t: DVec3) -> Mesh {
+    /// The mesh rotated by `rot`, then moved by `t`.
+    pub fn transformed(mut self, rot: DQuat, t: DVec3) -> Mesh {
         for v in &mut self.vertices {
             let p = rot * DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64) + t;
             *v = [p.x as f32, p.y as f32, p.z as f32];
@@ -54,7 +55,8 @@ pub fn revolve(profile: &[(f64, f64)]) -> Mesh {
     m
 }
 
-fn arc(r: f64, cy: f64, from: f64, to: f64, n: usize) -> Vec<(f64, f64)> {
+/// `n + 1` points of the circle of radius `r` about `(0, cy)` from angle `from` to `to`.
+pub fn arc(r: f64, cy: f64, from: f64, to: f64, n: usize) -> Vec<(f64, f64)> {
     (0..=n)
         .map(|k| {
             let t = from + (to - from) * k as f64 / n as f64;
@@ -63,7 +65,8 @@ fn arc(r: f64, cy: f64, from: f64, to: f64, n: usize) -> Vec<(f64, f64)> {
         .collect()
 }
 
-fn box_mesh(h: DVec3) -> Mesh {
+/// A box of half extents `h`.
+pub fn box_mesh(h: DVec3) -> Mesh {
     let mut m = Mesh::default();
     for k in 0..8 {
         let s = DVec3::new(
@@ -88,88 +91,18 @@ fn box_mesh(h: DVec3) -> Mesh {
     m
 }
 
-fn capsule_profile(half_length: f64, r: f64) -> Vec<(f64, f64)> {
+/// The profile of a capsule along y, for [`revolve`].
+pub fn capsule_profile(half_length: f64, r: f64) -> Vec<(f64, f64)> {
     use std::f64::consts::FRAC_PI_2;
     let mut p = arc(r, -half_length, -FRAC_PI_2, 0.0, 8);
     p.extend(arc(r, half_length, 0.0, FRAC_PI_2, 8));
     p
 }
 
-/// Mesh of a shape in its local frame.
-pub fn shape_mesh(shape: &Shape) -> Mesh {
-    use std::f64::consts::FRAC_PI_2;
-    match *shape {
-        Shape::Plane { normal } => {
-            let n = DVec3::from(normal).normalize();
-            let rot = DQuat::from_rotation_arc(DVec3::Y, n);
-            box_mesh(DVec3::new(1.0, 1e-4, 1.0)).transformed(rot, DVec3::ZERO)
-        }
-        Shape::Box { half_extents } => box_mesh(half_extents.into()),
-        Shape::Sphere { radius } => revolve(&arc(radius, 0.0, -FRAC_PI_2, FRAC_PI_2, 16)),
-        Shape::Capsule {
-            half_length,
-            radius,
-        } => revolve(&capsule_profile(half_length, radius)),
-        Shape::Cylinder {
-            radius,
-            half_height,
-        } => revolve(&[
-            (0.0, -half_height),
-            (radius, -half_height),
-            (radius, half_height),
-            (0.0, half_height),
-        ]),
-        Shape::Cup {
-            outer_radius,
-            height,
-            wall_thickness,
-            floor_thickness,
-            fillet_radius,
-        } => {
-            let ri = outer_radius - wall_thickness;
-            let k = crate::math::sdf::cup_fillet(wall_thickness, fillet_radius);
-            let mut profile = vec![
-                (0.0, 0.0),
-                (outer_radius, 0.0),
-                (outer_radius, height),
-                (ri, height),
-            ];
-            // The fillet, from the wall down to the floor.
-            profile.extend((0..=8).map(|j| {
-                let t = -FRAC_PI_2 * j as f64 / 8.0;
-                (ri - k + k * t.cos(), floor_thickness + k + k * t.sin())
-            }));
-            profile.push((0.0, floor_thickness));
-            revolve(&profile)
-        }
-        Shape::Spoon {
-            bowl_radius,
-            bowl_depth,
-            thickness,
-            handle_length,
-            handle_radius,
-            handle_rise,
-        } => {
-            let (h, a, d) =
-                spoon_rim_and_handle(bowl_radius, bowl_depth, handle_length, handle_rise);
-            let rim = (h / bowl_radius).clamp(-1.0, 1.0).asin();
-            let t = 0.5 * thickness;
-            let mut profile = arc(bowl_radius + t, 0.0, -FRAC_PI_2, rim, 12);
-            profile.extend(arc(bowl_radius - t, 0.0, rim, -FRAC_PI_2, 12));
-            let mut m = revolve(&profile);
-            let handle = revolve(&capsule_profile(0.5 * d.length(), handle_radius)).transformed(
-                DQuat::from_rotation_arc(DVec3::Y, d.normalize()),
-                a + 0.5 * d,
-            );
-            m.append(handle);
-            m
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
-    use super::*;
+    use crate::math::sdf::Shape;
+    use glam::DVec3;
 
     #[test]
     fn meshes_are_well_formed_and_lie_on_the_surface() {
@@ -190,7 +123,7 @@ mod tests {
             },
         ];
         for s in shapes {
-            let m = shape_mesh(&s);
+            let m = s.mesh();
             let n = m.vertices.len() as u32;
             assert!(m.triangles.iter().flatten().all(|&i| i < n));
             for v in &m.vertices {
