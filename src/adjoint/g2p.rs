@@ -13,7 +13,7 @@
 use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::math::kernel::stencil;
-use crate::systems::p2g::SLAB;
+use crate::systems::slab_schedule::SLAB;
 use crate::systems::slab_schedule::{Cut, SlabSchedule};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};

@@ -7,7 +7,7 @@
 //! adjoint gathers per particle, so gradients are bitwise identical for any thread count.
 //!
 //! Every adjoint system reads the forward values of its substep: the backward driver
-//! (`tape.rs`) restores the substep's start state, re-runs the forward stages up to G2P (which
+//! ([`tape`], with [`checkpoint`] and [`replay`]) restores the substep's start state, re-runs the forward stages up to G2P (which
 //! refills the scratch: SVD factors, affine term, grid) and keeps the start state in
 //! [`SubstepStart`](crate::components::SubstepStart) for the stages whose inputs were
 //! overwritten in place.
@@ -16,6 +16,7 @@
 //! friction angle's dependence on the plastic strain).
 
 pub mod advect;
+pub mod checkpoint;
 pub mod constitutive;
 pub mod deformation_update;
 pub mod g2p;
@@ -25,6 +26,7 @@ pub mod grid_reset;
 pub mod loss;
 pub mod p2g;
 pub mod particle_collision;
+pub mod replay;
 pub mod svd;
 pub mod tape;
 pub mod tool_move;
@@ -35,7 +37,7 @@ use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleLabel;
 
 /// Raised by an adjoint stage that has just written a non-finite value into one of the particle
-/// fields the backward driver checks after it (`tape.rs`, `written_by`). The stages test the
+/// fields the backward driver checks after it (`replay.rs`, `written_by`). The stages test the
 /// values they write while they hold them, so the driver scans those fields (to name the
 /// particle) only after a stage that raised it, instead of reading every field after every
 /// stage. Where the resource is absent (an adjoint system run alone), nothing is raised.
@@ -63,6 +65,9 @@ pub struct SubstepAdjoint;
 
 /// Adds the adjoint systems of one stage. Returns whether any was added.
 pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> bool {
+    if !stage.runs(plan) {
+        return false;
+    }
     match stage {
         // Nothing to do (see `grid_reset`'s module docs).
         Stage::GridReset => return false,
@@ -115,15 +120,9 @@ pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPl
             schedule.add_systems(advect::advect_adjoint.in_set(stage));
         }
         Stage::ToolMove => {
-            if !plan.has_tools {
-                return false;
-            }
             schedule.add_systems(tool_move::tool_move_adjoint.in_set(stage));
         }
         Stage::ParticleCollision => {
-            if !plan.particle_contact {
-                return false;
-            }
             schedule.add_systems(particle_collision::particle_collision_adjoint.in_set(stage));
         }
     }
@@ -133,22 +132,7 @@ pub fn add_adjoint_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPl
 /// The adjoint substep: the forward stage sets chained in reverse.
 pub fn build_substep_adjoint_schedule(plan: &SubstepPlan) -> Schedule {
     let mut s = new_schedule();
-    s.configure_sets(
-        (
-            Stage::Advect,
-            Stage::ParticleCollision,
-            Stage::G2p,
-            Stage::GridCollision,
-            Stage::Gravity,
-            Stage::ToolMove,
-            Stage::P2g,
-            Stage::Constitutive,
-            Stage::Svd,
-            Stage::DeformationUpdate,
-            Stage::GridReset,
-        )
-            .chain(),
-    );
+    crate::systems::chain_stages(&mut s, false);
     for stage in Stage::ALL.iter().rev() {
         add_adjoint_stage(&mut s, *stage, plan);
     }

@@ -1,6 +1,7 @@
 //! Forward stages of one substep, one file per stage, each a bevy_ecs system.
 //!
-//! The stage order (DESIGN §2) is encoded by the chained [`Stage`] sets:
+//! The stage order (`docs/design.md` §2) is [`Stage::ALL`], written once; the forward schedule
+//! chains the stage sets in that order and the adjoint schedule (`crate::adjoint`) in reverse:
 //! grid reset → deformation update → SVD → constitutive model → P2G → tool move → gravity →
 //! grid collision → G2P → particle collision → advect.
 //!
@@ -52,6 +53,7 @@ pub enum Stage {
 }
 
 impl Stage {
+    /// The stages in run order: the one list both schedules derive from.
     pub const ALL: [Stage; 11] = [
         Stage::GridReset,
         Stage::DeformationUpdate,
@@ -81,6 +83,24 @@ impl Stage {
             Stage::Advect => "advect",
         }
     }
+
+    /// Whether a scene with `plan` runs this stage (and so its adjoint).
+    pub fn runs(self, plan: &SubstepPlan) -> bool {
+        match self {
+            Stage::Constitutive => !plan.materials.is_empty(),
+            Stage::ToolMove => plan.has_tools,
+            Stage::ParticleCollision => plan.particle_contact,
+            _ => true,
+        }
+    }
+}
+
+/// Orders the stage sets of `schedule` as [`Stage::ALL`] (`forward`) or in reverse.
+pub fn chain_stages(schedule: &mut Schedule, forward: bool) {
+    for w in Stage::ALL.windows(2) {
+        let (a, b) = if forward { (w[0], w[1]) } else { (w[1], w[0]) };
+        schedule.configure_sets(a.before(b));
+    }
 }
 
 /// Orders the constitutive systems of several materials within their stage.
@@ -102,6 +122,9 @@ pub struct SubstepPlan {
 
 /// Adds the systems of one stage to `schedule`, in the stage's set. Returns whether any was added.
 pub fn add_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> bool {
+    if !stage.runs(plan) {
+        return false;
+    }
     match stage {
         Stage::GridReset => {
             schedule.add_systems(grid_reset::grid_reset.in_set(stage));
@@ -113,9 +136,6 @@ pub fn add_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> b
             schedule.add_systems(svd::svd.in_set(stage));
         }
         Stage::Constitutive => {
-            if plan.materials.is_empty() {
-                return false;
-            }
             // Materials touch disjoint bodies, but the ECS cannot know that: order them.
             for (i, m) in plan.materials.iter().enumerate() {
                 schedule.add_systems(
@@ -132,9 +152,6 @@ pub fn add_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> b
             schedule.add_systems(p2g::p2g.in_set(stage));
         }
         Stage::ToolMove => {
-            if !plan.has_tools {
-                return false;
-            }
             schedule.add_systems(tool_move::tool_move.in_set(stage));
         }
         Stage::Gravity => {
@@ -158,9 +175,6 @@ pub fn add_stage(schedule: &mut Schedule, stage: Stage, plan: &SubstepPlan) -> b
             schedule.add_systems(g2p::g2p.in_set(stage));
         }
         Stage::ParticleCollision => {
-            if !plan.particle_contact {
-                return false;
-            }
             schedule.add_systems(particle_collision::particle_collision.in_set(stage));
         }
         Stage::Advect => {
@@ -185,22 +199,7 @@ pub fn new_schedule() -> Schedule {
 /// The whole substep as one schedule with chained stage sets.
 pub fn build_substep_schedule(plan: &SubstepPlan) -> Schedule {
     let mut s = new_schedule();
-    s.configure_sets(
-        (
-            Stage::GridReset,
-            Stage::DeformationUpdate,
-            Stage::Svd,
-            Stage::Constitutive,
-            Stage::P2g,
-            Stage::ToolMove,
-            Stage::Gravity,
-            Stage::GridCollision,
-            Stage::G2p,
-            Stage::ParticleCollision,
-            Stage::Advect,
-        )
-            .chain(),
-    );
+    chain_stages(&mut s, true);
     for stage in Stage::ALL {
         add_stage(&mut s, stage, plan);
     }

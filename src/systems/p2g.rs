@@ -19,18 +19,10 @@
 
 use crate::components::*;
 use crate::math::kernel::stencil;
-use crate::systems::slab_schedule::{Cut, SlabSchedule};
+use crate::systems::slab_schedule::{Cut, SlabSchedule, SLAB};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
-
-/// Width of a scatter slab in x-planes of base nodes. A slab writes `SLAB + 2` planes, and
-/// those must not reach slab `s + 2`'s, which start `2·SLAB` planes on, so it must be ≥ 2. The
-/// narrowest width gives the most slabs: the default scene's powder, 12 cells across in a cup,
-/// makes 6–7 slabs instead of 3–4 at width 4, and its scatters now run on both threads
-/// (adjoint G2P 1.60 → 1.08 s over its horizon, 2 threads); on `sand_box` the width makes no
-/// measurable difference.
-pub const SLAB: usize = 2;
 
 /// Particles per chunk of [`bin_by_slab`]'s parallel pass. Fixed, so the chunks (and so the
 /// order) do not depend on the thread count.
