@@ -40,12 +40,13 @@ pub type Real = f64;
 pub mod adjoint;
 pub mod components;
 pub mod error;
+#[cfg(feature = "lab")]
 pub mod gradcheck;
 pub mod materials;
 pub mod math;
-pub mod mesh;
 pub mod metrics;
 pub mod nonfinite;
+#[cfg(feature = "lab")]
 pub mod optim;
 pub mod ply;
 #[cfg(feature = "rerun")]
@@ -53,7 +54,9 @@ pub mod record;
 pub mod scene;
 pub mod sim;
 pub mod skills;
+#[cfg(feature = "lab")]
 pub mod study;
 pub mod systems;
 pub mod util;
+#[cfg(feature = "lab")]
 pub mod validate;

@@ -1,5 +1,5 @@
 //! Skills: Θ = (θ_d, θ_s, θ_l, θ_t, θ_p) ∈ [−1, 1]⁵ → a 6-D control per global step
-//! (DESIGN §4).
+//! (docs/design.md §4).
 //!
 //! Each θ maps linearly to a physical range from the scene, `value = min + (θ+1)/2·(max − min)`,
 //! and drives one phase: descend (scoop depth below the powder surface), scoop (rotation about

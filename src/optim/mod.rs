@@ -1,4 +1,4 @@
-//! `powderlab optimize`: skill optimisation of the transport task (DESIGN §5), by gradient
+//! `powderlab optimize`: skill optimisation of the transport task (docs/design.md §5), by gradient
 //! descent through the simulation and by three baselines given the same rollout budget.
 //!
 //! - **grad**: RMSprop (β = 0.9, lr = 0.05, ε = 1e-8) on `∂L/∂Θ` from the adjoint pass, with the

@@ -1,0 +1,74 @@
+//! The commands of the `powderlab` binary, one file each. Each parses its own arguments
+//! (`Args`) and calls the library; what a command decides beyond reading its arguments and
+//! printing lives in the library module it calls.
+
+pub mod bench;
+#[cfg(feature = "lab")]
+pub mod gradcheck;
+#[cfg(feature = "lab")]
+pub mod optimize;
+pub mod simulate;
+#[cfg(feature = "lab")]
+pub mod study;
+#[cfg(feature = "lab")]
+pub mod validate;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use powderlab::sim::Simulation;
+
+/// Parses `--threads`: 0 (all cores) up to [`powderlab::scene::MAX_THREADS`].
+pub fn threads_arg(s: &str) -> Result<usize, String> {
+    let max = powderlab::scene::MAX_THREADS;
+    match s.parse::<usize>() {
+        Ok(n) if n <= max => Ok(n),
+        _ => Err(format!(
+            "expected a whole number from 0 (all cores) to {max}, got '{s}'"
+        )),
+    }
+}
+
+/// A progress bar of `len` units, hidden when `quiet`.
+pub fn bar(len: u64, quiet: bool) -> ProgressBar {
+    if quiet {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    pb.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} {msg} (eta {eta})")
+            .expect("static template")
+            .progress_chars("=> "),
+    );
+    pb
+}
+
+/// Prints what the stability guard found and whether it raised the substeps.
+pub fn describe_stability(sim: &Simulation) {
+    let s = &sim.stability;
+    let p = sim.params();
+    eprintln!(
+        "stability: wave speed {:.3} m/s, largest speed {:.3} m/s, stable substep {:.3e} s",
+        s.wave_speed, s.max_speed, s.dt_max
+    );
+    if s.raised() {
+        eprintln!(
+            "stability: Auto raised substeps from {} to {} (Δt_sub = {:.3e} s)",
+            s.substeps_requested, s.substeps, p.dt_sub
+        );
+    }
+}
+
+/// Writes a report to `report` (atomically) if asked, and prints it as one JSON object with
+/// `--json`; returns whether the caller should print its text form instead.
+pub fn report_or_json(
+    obj: &serde_json::Value,
+    report: Option<&std::path::Path>,
+    json_out: bool,
+) -> anyhow::Result<bool> {
+    if let Some(p) = report {
+        powderlab::util::write_atomic(p, serde_json::to_string_pretty(obj)?.as_bytes())?;
+    }
+    if json_out {
+        println!("{obj}");
+    }
+    Ok(!json_out)
+}

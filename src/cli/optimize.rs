@@ -1,0 +1,209 @@
+//! `powderlab optimize`: skill optimisation of a scene's tool by gradient descent through the
+//! simulation, and the baselines on the same rollout budget.
+
+use anyhow::{bail, Context, Result};
+use std::path::PathBuf;
+
+/// Optimise the skill parameters of the scene's tool (gradient descent, and the baselines
+/// on the same rollout budget); writes metrics.csv, summary.json, indicator.svg, best.rrd.
+#[derive(clap::Args)]
+pub struct Args {
+    /// The scene whose tool has a skill control.
+    scene: PathBuf,
+    /// grad, cmaes, sac, random or all (comma separated).
+    #[arg(long, value_delimiter = ',', default_value = "all")]
+    method: Vec<String>,
+    /// Rollouts per seed and method (the gradient method's epochs).
+    #[arg(long, default_value_t = 30)]
+    epochs: usize,
+    /// Seeds, each with its own Θ_init.
+    #[arg(long, default_value_t = 3)]
+    seeds: usize,
+    /// Run directory (default: runs/<scene name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Continue an interrupted run in --out.
+    #[arg(long)]
+    resume: bool,
+    /// Worker threads (default: the scene's setting; 0 = all cores).
+    #[arg(long, value_parser = super::threads_arg)]
+    threads: Option<usize>,
+    /// RMSprop learning rate.
+    #[arg(long, default_value_t = 0.05)]
+    lr: f64,
+    /// Last epoch of the curriculum's scoop-only phase (θ_d, θ_s, θ_l).
+    #[arg(long, default_value_t = 15)]
+    curriculum_switch: usize,
+    /// Scale each gradient to unit length before RMSprop (not the paper's method; see the
+    /// README's skill-optimisation section).
+    #[arg(long)]
+    grad_normalize: bool,
+    /// Clip each gradient to the median length of the seed's gradients so far before RMSprop
+    /// (not the paper's method; see the README's skill-optimisation section).
+    #[arg(long)]
+    grad_clip_median: bool,
+    /// CMA-ES samples per generation.
+    #[arg(long, default_value_t = 6)]
+    cmaes_population: usize,
+    /// CMA-ES initial step size (Θ units).
+    #[arg(long, default_value_t = 0.5)]
+    cmaes_sigma: f64,
+    /// SAC minibatch size.
+    #[arg(long, default_value_t = 8)]
+    sac_batch: usize,
+    /// SAC gradient steps after each rollout.
+    #[arg(long, default_value_t = 20)]
+    sac_updates: usize,
+    /// Memory budget of a backward pass's tape in MB.
+    #[arg(long, default_value_t = 1024)]
+    budget_mb: usize,
+    /// Print the summary as one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs the command.
+pub fn run(args: Args) -> Result<()> {
+    let Args {
+        scene,
+        method,
+        epochs,
+        seeds,
+        out,
+        resume,
+        threads,
+        lr,
+        curriculum_switch,
+        grad_normalize,
+        grad_clip_median,
+        cmaes_population,
+        cmaes_sigma,
+        sac_batch,
+        sac_updates,
+        budget_mb,
+        json: json_out,
+    } = args;
+    use powderlab::optim::{self, Method};
+    // Each method once, in the order first named (`--method grad,all` runs grad once).
+    let mut methods: Vec<Method> = Vec::new();
+    for m in &method {
+        match Method::parse_list(m) {
+            Some(ms) => {
+                for m in ms {
+                    if !methods.contains(&m) {
+                        methods.push(m);
+                    }
+                }
+            }
+            None => bail!("--method {m}: expected grad, cmaes, sac, random or all"),
+        }
+    }
+    if !(lr > 0.0 && lr.is_finite()) {
+        bail!("--lr {lr}: expected a positive learning rate");
+    }
+    if !(cmaes_sigma > 0.0 && cmaes_sigma.is_finite()) {
+        bail!("--cmaes-sigma {cmaes_sigma}: expected a positive step size");
+    }
+    if cmaes_population < 2 {
+        bail!("--cmaes-population {cmaes_population}: expected at least 2");
+    }
+    if sac_batch == 0 {
+        bail!("--sac-batch 0: expected at least 1");
+    }
+    let sc = powderlab::scene::Scene::load(&scene)?;
+    let problem = optim::problem::Problem::new(sc.clone(), budget_mb << 20)?;
+    let threads = threads.unwrap_or(sc.simulation.threads);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+        .context("starting the worker threads")?;
+    let out =
+        out.unwrap_or_else(|| PathBuf::from("runs").join(scene.file_stem().unwrap_or_default()));
+    let settings = optim::Settings {
+        scene_hash: optim::fnv1a(&sc.source),
+        methods,
+        epochs,
+        seeds,
+        rmsprop: optim::rmsprop::RmsProp {
+            lr,
+            switch_epoch: curriculum_switch,
+            normalize: grad_normalize,
+            clip_median: grad_clip_median,
+            ..Default::default()
+        },
+        cmaes: optim::cma::CmaConfig {
+            sigma0: cmaes_sigma,
+            population: cmaes_population,
+        },
+        sac: optim::sac::SacConfig {
+            batch: sac_batch,
+            updates_per_rollout: sac_updates,
+            ..Default::default()
+        },
+        tape_budget: budget_mb << 20,
+    };
+    if !json_out {
+        eprintln!(
+            "{}: {} × {seeds} seeds × {epochs} rollouts, {} threads, out {}",
+            scene.display(),
+            settings
+                .methods
+                .iter()
+                .map(|m| m.name())
+                .collect::<Vec<_>>()
+                .join(", "),
+            rayon::current_num_threads(),
+            out.display()
+        );
+    }
+    let r = optim::run(
+        &problem,
+        &optim::Options {
+            settings,
+            out: out.clone(),
+            resume,
+            quiet: json_out,
+        },
+    )?;
+    if json_out {
+        println!("{}", r.summary);
+        return Ok(());
+    }
+    let unit = r.summary["indicator_unit"].as_str().unwrap_or("");
+    println!(
+        "{:<8} {:>26} {:>26} {:>9} {:>9}",
+        "method",
+        format!("initial indicator ({unit})"),
+        format!("final indicator ({unit})"),
+        "rollouts",
+        "wall s"
+    );
+    if let Some(ms) = r.summary["methods"].as_object() {
+        for (name, m) in ms {
+            let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
+            println!(
+                "{:<8} {:>26} {:>26} {:>9} {:>9.1}",
+                name,
+                format!(
+                    "{:.3} ± {:.3}",
+                    f("initial_indicator_mean"),
+                    f("initial_indicator_std")
+                ),
+                format!(
+                    "{:.3} ± {:.3}",
+                    f("final_indicator_mean"),
+                    f("final_indicator_std")
+                ),
+                m["rollouts_per_seed"].as_u64().unwrap_or(0) * seeds as u64,
+                f("wall_s")
+            );
+        }
+    }
+    eprintln!(
+        "{} rollouts simulated, {} replayed from the journal; results in {}",
+        r.ran,
+        r.replayed,
+        out.display()
+    );
+    Ok(())
+}

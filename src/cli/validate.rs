@@ -1,0 +1,152 @@
+//! `powderlab validate`: exact solutions and published experiments (the cases and their
+//! resolutions are [`powderlab::validate::suite`]'s), and the stability suite.
+
+use anyhow::{bail, Result};
+use powderlab::util::check_output_file;
+use powderlab::validate::suite::{self, Case, Progress};
+use serde_json::json;
+use std::path::PathBuf;
+
+/// Check against exact solutions and published experiments.
+#[derive(clap::Args)]
+pub struct Args {
+    /// free_fall, bar, self_weight, incline, column_collapse, pile_angle or stability. Without
+    /// a case the quick set runs (free_fall, bar, self_weight, incline: about 20 s on 2 cores).
+    case: Option<String>,
+    /// Every case but stability (about 13 minutes on 2 cores).
+    #[arg(long, conflicts_with = "case")]
+    all: bool,
+    /// Grid cells across the collapsing column (default 20, the published check: every
+    /// large-a column, and the tallest small-a one, whose band stands 1.5× as many cells
+    /// high) or the pile's column (default 40, at least 10).
+    #[arg(long)]
+    cells: Option<usize>,
+    #[arg(long, value_parser = super::threads_arg)]
+    threads: Option<usize>,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+    /// Also write the JSON report here.
+    #[arg(long)]
+    report: Option<PathBuf>,
+}
+
+/// Moves an indicatif bar through each simulation of a case.
+struct Bar {
+    pb: indicatif::ProgressBar,
+    quiet: bool,
+}
+
+impl Progress for Bar {
+    fn start(&mut self, label: String) {
+        self.pb.finish_and_clear();
+        self.pb = super::bar(1000, self.quiet);
+        self.pb.set_message(label);
+    }
+    fn advance(&mut self, fraction: f64) {
+        self.pb.set_position((fraction * 1000.0) as u64);
+    }
+}
+
+/// Runs the command.
+pub fn run(a: Args) -> Result<()> {
+    if let Some(p) = &a.report {
+        check_output_file(p, "--report")?;
+    }
+    let cases: Vec<Case> = match a.case.as_deref() {
+        Some("stability") => return stability(a.threads, a.json, a.report),
+        Some("all") => bail!("validate all: use --all (every case but stability)"),
+        Some(name) => match Case::parse(name) {
+            Some(c) => vec![c],
+            None => {
+                let known: Vec<_> = Case::ALL.iter().map(|c| c.name()).collect();
+                bail!(
+                    "unknown validation case '{name}': expected one of {known:?}, stability, or none for the quick set"
+                )
+            }
+        },
+        None if a.all => Case::ALL.to_vec(),
+        None => Case::QUICK.to_vec(),
+    };
+    let estimate: f64 = cases.iter().map(|c| c.estimate_s(a.cells)).sum();
+    if !a.json {
+        let names: Vec<_> = cases.iter().map(|c| c.name()).collect();
+        eprintln!(
+            "validate: {} — about {} on 2 cores{}",
+            names.join(", "),
+            duration(estimate),
+            if a.case.is_none() && !a.all {
+                "; --all adds column_collapse and pile_angle (about 13 minutes)"
+            } else {
+                ""
+            }
+        );
+    }
+    let mut bar = Bar {
+        pb: indicatif::ProgressBar::hidden(),
+        quiet: a.json,
+    };
+    let mut checks = Vec::new();
+    for c in cases {
+        checks.extend(suite::run(c, a.cells, a.threads, &mut bar)?);
+    }
+    bar.pb.finish_and_clear();
+    let passed = checks.iter().all(|c| c.passed);
+    let obj = json!({ "passed": passed, "checks": checks });
+    if super::report_or_json(&obj, a.report.as_deref(), a.json)? {
+        println!(
+            "{:<16} {:<40} {:>12} {:>12} {:>10} {:<12} result",
+            "case", "quantity", "measured", "published", "tolerance", "kind"
+        );
+        for c in &checks {
+            println!(
+                "{:<16} {:<40} {:>12.5e} {:>12.5e} {:>10.3e} {:<12} {}  {}",
+                c.case,
+                c.quantity,
+                c.measured,
+                c.published,
+                c.tolerance,
+                c.kind,
+                if c.passed { "PASS" } else { "FAIL" },
+                c.note
+            );
+        }
+    }
+    if !passed {
+        std::process::exit(1);
+    }
+    Ok(())
+}
+
+/// Seconds as "40 s" or "12 min".
+fn duration(s: f64) -> String {
+    if s < 90.0 {
+        format!("{s:.0} s")
+    } else {
+        format!("{:.0} min", s / 60.0)
+    }
+}
+
+/// `validate stability`: every case of the suite, as a Markdown table (and JSON).
+fn stability(threads: Option<usize>, json_out: bool, report: Option<PathBuf>) -> Result<()> {
+    use powderlab::validate::stability::{cases, markdown, run_case};
+    let cases = cases();
+    let pb = super::bar(cases.len() as u64, json_out);
+    let mut results = Vec::new();
+    for c in &cases {
+        pb.set_message(c.name.clone());
+        results.push(run_case(c, threads));
+        pb.inc(1);
+    }
+    pb.finish_and_clear();
+    let passed = results.iter().all(|r| r.outcome.acceptable());
+    let obj = json!({ "passed": passed, "stability": results });
+    if super::report_or_json(&obj, report.as_deref(), json_out)? {
+        print!("{}", markdown(&results));
+    }
+    if !passed {
+        eprintln!("a case ended unstable or non-finite (see the table)");
+        std::process::exit(1);
+    }
+    Ok(())
+}

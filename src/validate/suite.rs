@@ -1,0 +1,194 @@
+//! Which cases `powderlab validate` runs, at which resolutions, and about how long each takes.
+//!
+//! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
+//! `--all` adds the column collapse and the pile angle, about 13 minutes. The stability suite
+//! has a table of its own ([`super::stability`]) and runs only when named.
+
+use super::{bar, column, incline, pile, Check};
+use super::{
+    collapse_checks, free_fall, halving_check, run_collapse, scale_invariance, small_a_band,
+    Collapse, COLLAPSE_CELLS, LARGE_A, LARGE_A_SLOPE, LARGE_A_SLOPE_TOL,
+};
+use anyhow::bail;
+
+/// A validation case.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Case {
+    FreeFall,
+    Bar,
+    SelfWeight,
+    Incline,
+    ColumnCollapse,
+    PileAngle,
+}
+
+/// What a long run reports while it goes: `start` names the next simulation, `advance` gives
+/// the fraction of it done.
+pub trait Progress {
+    fn start(&mut self, label: String);
+    fn advance(&mut self, fraction: f64);
+}
+
+/// A [`Progress`] that reports nothing.
+pub struct Silent;
+
+impl Progress for Silent {
+    fn start(&mut self, _: String) {}
+    fn advance(&mut self, _: f64) {}
+}
+
+impl Case {
+    /// Every case but the stability suite, in the order they run.
+    pub const ALL: [Case; 6] = [
+        Case::FreeFall,
+        Case::Bar,
+        Case::SelfWeight,
+        Case::Incline,
+        Case::ColumnCollapse,
+        Case::PileAngle,
+    ];
+    /// The cases `powderlab validate` runs when none is named.
+    pub const QUICK: [Case; 4] = [Case::FreeFall, Case::Bar, Case::SelfWeight, Case::Incline];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Case::FreeFall => "free_fall",
+            Case::Bar => "bar",
+            Case::SelfWeight => "self_weight",
+            Case::Incline => "incline",
+            Case::ColumnCollapse => "column_collapse",
+            Case::PileAngle => "pile_angle",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Case> {
+        Case::ALL.into_iter().find(|c| c.name() == s)
+    }
+
+    /// Wall seconds at the default resolution on 2 cores (an AMD EPYC, Zen 1), as measured by
+    /// `powderlab validate CASE --threads 2` (the column collapse in an earlier, slower run);
+    /// the cost of the resolution-dependent cases grows about as the cube of `--cells` (cells²
+    /// particles in the slab, cells substeps).
+    pub fn estimate_s(self, cells: Option<usize>) -> f64 {
+        let (base, default_cells) = match self {
+            Case::FreeFall => (0.2, None),
+            Case::Bar => (4.2, None),
+            Case::SelfWeight => (4.7, None),
+            Case::Incline => (7.2, None),
+            Case::ColumnCollapse => (740.0, Some(COLLAPSE_CELLS)),
+            Case::PileAngle => (29.0, Some(pile::PILE_CELLS)),
+        };
+        match (cells, default_cells) {
+            (Some(c), Some(d)) => base * (c as f64 / d as f64).powi(3),
+            _ => base,
+        }
+    }
+}
+
+/// Runs one case and returns its checks. `cells` sets the collapse's cells across L₀
+/// (default [`COLLAPSE_CELLS`]) or the pile's column (default [`pile::PILE_CELLS`]).
+pub fn run(
+    case: Case,
+    cells: Option<usize>,
+    threads: Option<usize>,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Vec<Check>> {
+    let mut checks = Vec::new();
+    match case {
+        Case::FreeFall => checks.extend(free_fall(threads)?),
+        Case::Bar => {
+            for n in [16, 32, 64] {
+                let r = bar::run_bar(&bar::Bar::new(n), threads)?;
+                checks.extend(bar::bar_checks(&r));
+            }
+        }
+        Case::SelfWeight => {
+            for ppc in [1, 8] {
+                let mut rs = Vec::new();
+                for n in [8, 16, 32] {
+                    rs.push(column::run_column(&column::Column::new(n, ppc), threads)?);
+                }
+                checks.extend(column::column_checks(&rs));
+            }
+        }
+        Case::Incline => {
+            for ratio in [0.95, 1.05] {
+                let r = incline::run_incline(&incline::Incline::new(ratio), threads)?;
+                checks.extend(incline::incline_checks(&r));
+            }
+        }
+        Case::ColumnCollapse => {
+            let cells = cells.unwrap_or(COLLAPSE_CELLS);
+            if cells < 4 {
+                bail!(
+                    "--cells {cells} is too coarse: use at least 4 ({COLLAPSE_CELLS} for the published check)"
+                );
+            }
+            let mut collapse = |a: f64, cells: usize| {
+                progress.start(format!("column collapse a = {a}, {cells} cells"));
+                run_collapse(&Collapse::new(a, cells), threads, |f| progress.advance(f))
+            };
+            let (small, at_one) = small_a_band(cells, &mut collapse)?;
+            checks.extend(small);
+            let mut large = Vec::new();
+            for a in LARGE_A {
+                large.push(collapse(a, cells)?);
+            }
+            checks.extend(collapse_checks(
+                "large-a",
+                &large,
+                LARGE_A_SLOPE,
+                LARGE_A_SLOPE_TOL,
+                &format!("{cells} cells across L0 at every a"),
+            ));
+            let fine = collapse(1.0, 2 * cells)?;
+            checks.push(halving_check(&at_one, &fine, cells));
+            checks.push(scale_invariance(1.0, cells, threads)?);
+        }
+        Case::PileAngle => {
+            use pile::{run_pile, Pile, MIN_PILE_CELLS, PILE_CELLS, PILE_FRICTION_DEG};
+            let cells = cells.unwrap_or(PILE_CELLS);
+            if cells < MIN_PILE_CELLS {
+                bail!(
+                    "--cells {cells} is too coarse for a pile: use at least {MIN_PILE_CELLS} \
+                     ({PILE_CELLS} for the published check)"
+                );
+            }
+            let mut rs = Vec::new();
+            for phi in PILE_FRICTION_DEG {
+                let p = Pile {
+                    friction_deg: phi,
+                    cells_across: cells,
+                };
+                progress.start(format!("pile at φ = {phi}°, {cells} cells"));
+                rs.push(run_pile(&p, threads, |f| progress.advance(f))?);
+            }
+            checks.extend(pile::pile_checks(&rs));
+        }
+    }
+    Ok(checks)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_case_parses_back_from_its_name() {
+        for c in Case::ALL {
+            assert_eq!(Case::parse(c.name()), Some(c));
+        }
+        assert_eq!(Case::parse("stability"), None);
+    }
+
+    #[test]
+    fn the_quick_set_is_a_fraction_of_all() {
+        let quick: f64 = Case::QUICK.iter().map(|c| c.estimate_s(None)).sum();
+        let all: f64 = Case::ALL.iter().map(|c| c.estimate_s(None)).sum();
+        assert!(quick < 120.0 && all > 10.0 * quick, "{quick} s of {all} s");
+        assert_eq!(
+            Case::ColumnCollapse.estimate_s(Some(2 * COLLAPSE_CELLS)),
+            8.0 * Case::ColumnCollapse.estimate_s(None)
+        );
+    }
+}
