@@ -48,6 +48,7 @@ pub mod metrics;
 pub mod nonfinite;
 #[cfg(feature = "lab")]
 pub mod optim;
+pub mod plugin;
 pub mod ply;
 #[cfg(feature = "rerun")]
 pub mod record;

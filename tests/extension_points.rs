@@ -6,7 +6,9 @@
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use powderlab::error::FieldError;
-use powderlab::materials::{material_adj, register, FdStep, Material, Param, UpdateAdj};
+use powderlab::materials::{
+    material_adj, register, Material, Param, UpdateAdj, POISSON_RATIO, YOUNGS_MODULUS,
+};
 use powderlab::math::return_map::{lame, lame_adj};
 use powderlab::math::sdf::{circle_distance_hessian, register_shape, ShapePlugin};
 use powderlab::scene::Scene;
@@ -29,16 +31,7 @@ struct StVenantKirchhoff {
 impl Material for StVenantKirchhoff {
     const NAME: &'static str = "st_venant_kirchhoff";
     const TAG: &'static str = "StVenantKirchhoff";
-    const PARAMS: &'static [Param] = &[
-        Param {
-            name: "youngs_modulus",
-            fd_step: FdStep::Relative(1e-6),
-        },
-        Param {
-            name: "poisson_ratio",
-            fd_step: FdStep::Absolute(1e-6),
-        },
-    ];
+    const PARAMS: &'static [Param] = &[YOUNGS_MODULUS, POISSON_RATIO];
     fn param(&self, i: usize) -> f64 {
         [self.youngs_modulus, self.poisson_ratio][i]
     }

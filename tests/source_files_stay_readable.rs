@@ -24,7 +24,11 @@ fn files(dir: &Path, out: &mut Vec<std::path::PathBuf>) {
 fn main_dispatches_and_files_stay_within_a_reading() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
     let main = std::fs::read_to_string(src.join("main.rs")).unwrap();
-    assert!(main.lines().count() <= MAIN_LINES, "src/main.rs has {} lines", main.lines().count());
+    assert!(
+        main.lines().count() <= MAIN_LINES,
+        "src/main.rs has {} lines",
+        main.lines().count()
+    );
     let mut all = Vec::new();
     files(&src, &mut all);
     let long: Vec<String> = all
@@ -36,5 +40,8 @@ fn main_dispatches_and_files_stay_within_a_reading() {
             (n > FILE_LINES && !reason).then(|| format!("{} ({n} lines)", p.display()))
         })
         .collect();
-    assert!(long.is_empty(), "over {FILE_LINES} lines without a reason: {long:?}");
+    assert!(
+        long.is_empty(),
+        "over {FILE_LINES} lines without a reason: {long:?}"
+    );
 }

@@ -59,6 +59,7 @@ pub fn describe_stability(sim: &Simulation) {
 
 /// Writes a report to `report` (atomically) if asked, and prints it as one JSON object with
 /// `--json`; returns whether the caller should print its text form instead.
+#[cfg(feature = "lab")]
 pub fn report_or_json(
     obj: &serde_json::Value,
     report: Option<&std::path::Path>,

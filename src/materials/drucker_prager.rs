@@ -1,7 +1,10 @@
 //! Drucker–Prager sand: StVK in Hencky strain with the Klár et al. 2016 return mapping and
 //! optional hardening. The maths is in `crate::math::return_map`.
 
-use super::{check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated};
+use super::{
+    check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated, POISSON_RATIO,
+    YOUNGS_MODULUS,
+};
 use crate::error::FieldError;
 use crate::math::return_map::{
     dp_alpha, dp_alpha_adj, dp_project, dp_project_adj, hardened_friction_deg, hencky, hencky_adj,
@@ -118,14 +121,8 @@ impl Material for DruckerPrager {
     const NAME: &'static str = "drucker_prager";
     const TAG: &'static str = "DruckerPrager";
     const PARAMS: &'static [Param] = &[
-        Param {
-            name: "youngs_modulus",
-            fd_step: FdStep::Relative(1e-6),
-        },
-        Param {
-            name: "poisson_ratio",
-            fd_step: FdStep::Absolute(1e-6),
-        },
+        YOUNGS_MODULUS,
+        POISSON_RATIO,
         Param {
             name: "friction_deg",
             fd_step: FdStep::Absolute(1e-6),

@@ -1,6 +1,6 @@
 //! Elastic solid: StVK in Hencky strain, no plasticity (no return mapping runs).
 
-use super::{check_range, material_adj, FdStep, Material, Param, UpdateAdj};
+use super::{check_range, material_adj, Material, Param, UpdateAdj, POISSON_RATIO, YOUNGS_MODULUS};
 use crate::error::FieldError;
 use crate::math::return_map::{
     hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj, lame, lame_adj,
@@ -33,16 +33,7 @@ fn default_poisson() -> f64 {
 impl Material for Elastic {
     const NAME: &'static str = "elastic";
     const TAG: &'static str = "Elastic";
-    const PARAMS: &'static [Param] = &[
-        Param {
-            name: "youngs_modulus",
-            fd_step: FdStep::Relative(1e-6),
-        },
-        Param {
-            name: "poisson_ratio",
-            fd_step: FdStep::Absolute(1e-6),
-        },
-    ];
+    const PARAMS: &'static [Param] = &[YOUNGS_MODULUS, POISSON_RATIO];
 
     fn param(&self, i: usize) -> f64 {
         [self.youngs_modulus, self.poisson_ratio][i]

@@ -50,6 +50,18 @@ pub struct Param {
     pub fd_step: FdStep,
 }
 
+/// Young's modulus `youngs_modulus` (Pa), perturbed by a millionth of its value.
+pub const YOUNGS_MODULUS: Param = Param {
+    name: "youngs_modulus",
+    fd_step: FdStep::Relative(1e-6),
+};
+
+/// Poisson's ratio `poisson_ratio`, perturbed by 1e-6.
+pub const POISSON_RATIO: Param = Param {
+    name: "poisson_ratio",
+    fd_step: FdStep::Absolute(1e-6),
+};
+
 /// A constitutive model, evaluated per particle in principal (singular-value) space.
 pub trait Material:
     Component

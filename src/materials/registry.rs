@@ -13,15 +13,16 @@
 use super::{Material, Param};
 use crate::adjoint::constitutive::constitutive_model_adjoint;
 use crate::error::FieldError;
+use crate::plugin::{Registry, Seed, Tag};
 use crate::systems::constitutive::constitutive_model;
 use bevy_ecs::prelude::*;
 use bevy_ecs::schedule::ScheduleConfigs;
 use bevy_ecs::system::ScheduleSystem;
-use serde::de::{self, DeserializeSeed, EnumAccess, VariantAccess, Visitor};
+use serde::de::{self, EnumAccess, VariantAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::any::{Any, TypeId};
 use std::fmt;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 
 macro_rules! builtin_materials {
     ($($ty:ty),* $(,)?) => {
@@ -171,13 +172,8 @@ impl PartialEq for MaterialSpec {
     }
 }
 
-/// Reads a registered material's parameters.
-type Parse = for<'a, 'de> fn(
-    &'a mut dyn erased_serde::Deserializer<'de>,
-) -> Result<MaterialSpec, erased_serde::Error>;
-
-/// The materials added with [`register`], by tag.
-static REGISTERED: RwLock<Vec<(&'static str, Parse)>> = RwLock::new(Vec::new());
+/// The materials added with [`register`].
+static REGISTERED: Registry<MaterialSpec> = Registry::new();
 
 fn parse_registered<'a, 'de, M: Material>(
     d: &'a mut dyn erased_serde::Deserializer<'de>,
@@ -204,29 +200,7 @@ pub fn register<M: Material>() {
         "material tag {} is built in",
         M::TAG
     );
-    let mut r = REGISTERED.write().unwrap_or_else(|e| e.into_inner());
-    r.retain(|(t, _)| *t != M::TAG);
-    r.push((M::TAG, parse_registered::<M>));
-}
-
-fn registered(tag: &str) -> Option<Parse> {
-    let r = REGISTERED.read().unwrap_or_else(|e| e.into_inner());
-    r.iter().find(|(t, _)| *t == tag).map(|(_, p)| *p)
-}
-
-/// Every tag a scene may use: the built-ins, then the registered ones.
-fn known_tags() -> &'static [&'static str] {
-    let r = REGISTERED.read().unwrap_or_else(|e| e.into_inner());
-    if r.is_empty() {
-        return BUILTIN_TAGS;
-    }
-    let all: Vec<&'static str> = BUILTIN_TAGS
-        .iter()
-        .copied()
-        .chain(r.iter().map(|(t, _)| *t))
-        .collect();
-    // Only on the error path of a scene that names an unknown material.
-    Box::leak(all.into_boxed_slice())
+    REGISTERED.insert(M::TAG, parse_registered::<M>);
 }
 
 impl Serialize for MaterialSpec {
@@ -239,38 +213,6 @@ impl Serialize for MaterialSpec {
     }
 }
 
-struct RegisteredSeed(Parse);
-
-impl<'de> DeserializeSeed<'de> for RegisteredSeed {
-    type Value = MaterialSpec;
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<MaterialSpec, D::Error> {
-        let mut erased = <dyn erased_serde::Deserializer>::erase(d);
-        (self.0)(&mut erased).map_err(de::Error::custom)
-    }
-}
-
-/// A variant's name, read as an identifier (what RON writes before the parentheses).
-struct Tag;
-
-impl<'de> DeserializeSeed<'de> for Tag {
-    type Value = String;
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<String, D::Error> {
-        d.deserialize_identifier(TagVisitor)
-    }
-}
-
-struct TagVisitor;
-
-impl<'de> Visitor<'de> for TagVisitor {
-    type Value = String;
-    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a material's name")
-    }
-    fn visit_str<E: de::Error>(self, v: &str) -> Result<String, E> {
-        Ok(v.to_string())
-    }
-}
-
 struct SpecVisitor;
 
 impl<'de> Visitor<'de> for SpecVisitor {
@@ -280,12 +222,15 @@ impl<'de> Visitor<'de> for SpecVisitor {
     }
     fn visit_enum<A: EnumAccess<'de>>(self, data: A) -> Result<MaterialSpec, A::Error> {
         let (tag, variant) = data.variant_seed(Tag)?;
-        if let Some(parse) = registered(&tag) {
-            return variant.newtype_variant_seed(RegisteredSeed(parse));
+        if let Some(parse) = REGISTERED.get(&tag) {
+            return variant.newtype_variant_seed(Seed(parse));
         }
         match parse_builtin(&tag, variant) {
             Some(r) => r,
-            None => Err(de::Error::unknown_variant(&tag, known_tags())),
+            None => Err(de::Error::unknown_variant(
+                &tag,
+                REGISTERED.known(BUILTIN_TAGS),
+            )),
         }
     }
 }

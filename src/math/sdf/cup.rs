@@ -7,6 +7,16 @@ use crate::error::FieldError;
 use crate::math::mesh::{revolve, Mesh};
 use glam::{DMat3, DVec3};
 
+/// A cup's dimensions (m), as the scene gives them.
+#[derive(Clone, Copy, Debug)]
+pub struct Cup {
+    pub outer_radius: f64,
+    pub height: f64,
+    pub wall_thickness: f64,
+    pub floor_thickness: f64,
+    pub fillet_radius: Option<f64>,
+}
+
 /// The radius of a cup's fillet: the one given, or the wall thickness.
 #[inline(always)]
 pub fn cup_fillet(wall_thickness: f64, fillet_radius: Option<f64>) -> f64 {
@@ -100,88 +110,106 @@ pub fn cup_hessian(
     }
 }
 
-/// [`super::Shape::surely_clear`] for a cup: a point inside the cavity and more than `s` from its
-/// wall, floor and open top is clear, since there `φ ≥ −φ_cavity = min(r_in − ρ, h_cavity −
-/// |y − y_c|)`.
-#[inline(always)]
-pub fn cup_surely_clear(
-    p: DVec3,
-    s: f64,
-    outer_radius: f64,
-    wall_thickness: f64,
-    floor_thickness: f64,
-    fillet_radius: Option<f64>,
-) -> bool {
-    // In the cavity φ ≥ min(a, b) − (√2 − 1)·k (the fillet cuts at most that much off the
-    // corner), and above it φ ≥ a.
-    let k = cup_fillet(wall_thickness, fillet_radius);
-    let s = s + CLEAR_SLACK + (std::f64::consts::SQRT_2 - 1.0) * k;
-    let r = outer_radius - wall_thickness - s;
-    r > 0.0 && p.y - floor_thickness > s && p.x * p.x + p.z * p.z < r * r
-}
+impl Cup {
+    /// The fillet's radius.
+    #[inline(always)]
+    fn fillet(&self) -> f64 {
+        cup_fillet(self.wall_thickness, self.fillet_radius)
+    }
 
-/// Checks a cup's dimensions.
-pub fn cup_validate(
-    outer_radius: f64,
-    height: f64,
-    wall_thickness: f64,
-    floor_thickness: f64,
-    fillet_radius: Option<f64>,
-) -> Result<(), FieldError> {
-    positive("outer_radius", outer_radius)?;
-    positive("height", height)?;
-    positive("wall_thickness", wall_thickness)?;
-    positive("floor_thickness", floor_thickness)?;
-    if wall_thickness >= outer_radius {
-        return Err(FieldError::new(
-            "wall_thickness",
-            wall_thickness.to_string(),
-            format!("< outer_radius {outer_radius} m"),
-        ));
+    #[inline]
+    pub fn sdf(&self, p: DVec3) -> (f64, DVec3) {
+        cup_sdf(
+            p,
+            self.outer_radius,
+            self.height,
+            self.wall_thickness,
+            self.floor_thickness,
+            self.fillet(),
+        )
     }
-    if floor_thickness >= height {
-        return Err(FieldError::new(
-            "floor_thickness",
-            floor_thickness.to_string(),
-            format!("< height {height} m"),
-        ));
-    }
-    let k = cup_fillet(wall_thickness, fillet_radius);
-    let room = (outer_radius - wall_thickness).min(height - floor_thickness);
-    if !(k >= 0.0 && k < room) {
-        return Err(FieldError::new(
-            "fillet_radius",
-            format!("{k}"),
-            format!(
-                "≥ 0 m and < {room} m (the cavity's radius and depth); leave it out for the wall thickness, or 0 for a sharp edge"
-            ),
-        ));
-    }
-    Ok(())
-}
 
-/// The cup revolved from its profile, the fillet included.
-pub fn cup_mesh(
-    outer_radius: f64,
-    height: f64,
-    wall_thickness: f64,
-    floor_thickness: f64,
-    fillet_radius: Option<f64>,
-) -> Mesh {
-    use std::f64::consts::FRAC_PI_2;
-    let ri = outer_radius - wall_thickness;
-    let k = cup_fillet(wall_thickness, fillet_radius);
-    let mut profile = vec![
-        (0.0, 0.0),
-        (outer_radius, 0.0),
-        (outer_radius, height),
-        (ri, height),
-    ];
-    // The fillet, from the wall down to the floor.
-    profile.extend((0..=8).map(|j| {
-        let t = -FRAC_PI_2 * j as f64 / 8.0;
-        (ri - k + k * t.cos(), floor_thickness + k + k * t.sin())
-    }));
-    profile.push((0.0, floor_thickness));
-    revolve(&profile)
+    pub fn hessian(&self, p: DVec3) -> DMat3 {
+        cup_hessian(
+            p,
+            self.outer_radius,
+            self.height,
+            self.wall_thickness,
+            self.floor_thickness,
+            self.fillet(),
+        )
+    }
+
+    /// A point inside the cavity and more than `s` from its wall, floor and open top is clear,
+    /// since there `φ ≥ −φ_cavity = min(r_in − ρ, h_cavity − |y − y_c|)`.
+    #[inline(always)]
+    pub fn surely_clear(&self, p: DVec3, s: f64) -> bool {
+        // In the cavity φ ≥ min(a, b) − (√2 − 1)·k (the fillet cuts at most that much off the
+        // corner), and above it φ ≥ a.
+        let k = self.fillet();
+        let s = s + CLEAR_SLACK + (std::f64::consts::SQRT_2 - 1.0) * k;
+        let r = self.outer_radius - self.wall_thickness - s;
+        r > 0.0 && p.y - self.floor_thickness > s && p.x * p.x + p.z * p.z < r * r
+    }
+
+    /// Checks the dimensions.
+    pub fn validate(&self) -> Result<(), FieldError> {
+        let Cup {
+            outer_radius,
+            height,
+            wall_thickness,
+            floor_thickness,
+            ..
+        } = *self;
+        positive("outer_radius", outer_radius)?;
+        positive("height", height)?;
+        positive("wall_thickness", wall_thickness)?;
+        positive("floor_thickness", floor_thickness)?;
+        if wall_thickness >= outer_radius {
+            return Err(FieldError::new(
+                "wall_thickness",
+                wall_thickness.to_string(),
+                format!("< outer_radius {outer_radius} m"),
+            ));
+        }
+        if floor_thickness >= height {
+            return Err(FieldError::new(
+                "floor_thickness",
+                floor_thickness.to_string(),
+                format!("< height {height} m"),
+            ));
+        }
+        let k = self.fillet();
+        let room = (outer_radius - wall_thickness).min(height - floor_thickness);
+        if !(k >= 0.0 && k < room) {
+            return Err(FieldError::new(
+                "fillet_radius",
+                format!("{k}"),
+                format!(
+                    "≥ 0 m and < {room} m (the cavity's radius and depth); leave it out for the wall thickness, or 0 for a sharp edge"
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// The cup revolved from its profile, the fillet included.
+    pub fn mesh(&self) -> Mesh {
+        use std::f64::consts::FRAC_PI_2;
+        let ri = self.outer_radius - self.wall_thickness;
+        let k = self.fillet();
+        let mut profile = vec![
+            (0.0, 0.0),
+            (self.outer_radius, 0.0),
+            (self.outer_radius, self.height),
+            (ri, self.height),
+        ];
+        // The fillet, from the wall down to the floor.
+        profile.extend((0..=8).map(|j| {
+            let t = -FRAC_PI_2 * j as f64 / 8.0;
+            (ri - k + k * t.cos(), self.floor_thickness + k + k * t.sin())
+        }));
+        profile.push((0.0, self.floor_thickness));
+        revolve(&profile)
+    }
 }

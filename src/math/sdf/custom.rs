@@ -5,12 +5,13 @@
 
 use crate::error::FieldError;
 use crate::math::mesh::Mesh;
+use crate::plugin::{Registry, Seed, Tag};
 use glam::{DMat3, DVec3};
-use serde::de::{self, DeserializeOwned, DeserializeSeed, EnumAccess, VariantAccess, Visitor};
+use serde::de::{self, DeserializeOwned, EnumAccess, VariantAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize, Serializer};
 use std::any::Any;
 use std::fmt;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 
 /// A shape of a program's own, in its local frame (SI units).
 pub trait ShapePlugin:
@@ -123,12 +124,8 @@ impl PartialEq for CustomShape {
     }
 }
 
-type Parse = for<'a, 'de> fn(
-    &'a mut dyn erased_serde::Deserializer<'de>,
-) -> Result<CustomShape, erased_serde::Error>;
-
-/// The shapes added with [`register_shape`], by tag.
-static REGISTERED: RwLock<Vec<(&'static str, Parse)>> = RwLock::new(Vec::new());
+/// The shapes added with [`register_shape`].
+static REGISTERED: Registry<CustomShape> = Registry::new();
 
 fn parse<'a, 'de, S: ShapePlugin>(
     d: &'a mut dyn erased_serde::Deserializer<'de>,
@@ -139,46 +136,12 @@ fn parse<'a, 'de, S: ShapePlugin>(
 /// Makes shape `S` available to scenes as `Custom(S::TAG((...)))`; registering a tag again
 /// replaces the earlier registration.
 pub fn register_shape<S: ShapePlugin>() {
-    let mut r = REGISTERED.write().unwrap_or_else(|e| e.into_inner());
-    r.retain(|(t, _)| *t != S::TAG);
-    r.push((S::TAG, parse::<S>));
+    REGISTERED.insert(S::TAG, parse::<S>);
 }
 
 impl Serialize for CustomShape {
     fn serialize<Z: Serializer>(&self, s: Z) -> Result<Z::Ok, Z::Error> {
         s.serialize_newtype_variant("CustomShape", 0, self.0.tag(), &*self.0)
-    }
-}
-
-/// A variant's name, read as an identifier.
-struct Tag;
-
-impl<'de> DeserializeSeed<'de> for Tag {
-    type Value = String;
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<String, D::Error> {
-        d.deserialize_identifier(TagVisitor)
-    }
-}
-
-struct TagVisitor;
-
-impl<'de> Visitor<'de> for TagVisitor {
-    type Value = String;
-    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a registered shape's name")
-    }
-    fn visit_str<E: de::Error>(self, v: &str) -> Result<String, E> {
-        Ok(v.to_string())
-    }
-}
-
-struct Seed(Parse);
-
-impl<'de> DeserializeSeed<'de> for Seed {
-    type Value = CustomShape;
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<CustomShape, D::Error> {
-        let mut erased = <dyn erased_serde::Deserializer>::erase(d);
-        (self.0)(&mut erased).map_err(de::Error::custom)
     }
 }
 
@@ -191,21 +154,9 @@ impl<'de> Visitor<'de> for ShapeVisitor {
     }
     fn visit_enum<A: EnumAccess<'de>>(self, data: A) -> Result<CustomShape, A::Error> {
         let (tag, variant) = data.variant_seed(Tag)?;
-        let found = {
-            let r = REGISTERED.read().unwrap_or_else(|e| e.into_inner());
-            r.iter().find(|(t, _)| *t == tag).map(|(_, p)| *p)
-        };
-        match found {
+        match REGISTERED.get(&tag) {
             Some(p) => variant.newtype_variant_seed(Seed(p)),
-            None => {
-                let r = REGISTERED.read().unwrap_or_else(|e| e.into_inner());
-                let known: Vec<&'static str> = r.iter().map(|(t, _)| *t).collect();
-                // Only on the error path of a scene that names an unknown shape.
-                Err(de::Error::unknown_variant(
-                    &tag,
-                    Box::leak(known.into_boxed_slice()),
-                ))
-            }
+            None => Err(de::Error::unknown_variant(&tag, REGISTERED.known(&[]))),
         }
     }
 }

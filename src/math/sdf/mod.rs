@@ -17,7 +17,7 @@ pub mod spoon;
 #[cfg(test)]
 mod tests;
 
-pub use cup::{cup_fillet, cup_hessian, cup_sdf};
+pub use cup::{cup_fillet, cup_hessian, cup_sdf, Cup};
 pub use custom::{register_shape, CustomShape, ShapePlugin};
 pub use primitives::{
     circle_distance_hessian, cylinder_hessian, sd_box, sd_capsule, sd_capsule_y, sd_cylinder_y,
@@ -109,6 +109,27 @@ impl Shape {
         }
     }
 
+    /// The cup's dimensions, if it is one.
+    #[inline(always)]
+    fn cup(&self) -> Option<Cup> {
+        match *self {
+            Shape::Cup {
+                outer_radius,
+                height,
+                wall_thickness,
+                floor_thickness,
+                fillet_radius,
+            } => Some(Cup {
+                outer_radius,
+                height,
+                wall_thickness,
+                floor_thickness,
+                fillet_radius,
+            }),
+            _ => None,
+        }
+    }
+
     /// The shape's name in messages.
     pub fn name(&self) -> &'static str {
         match self {
@@ -137,20 +158,7 @@ impl Shape {
                 radius,
                 half_height,
             } => sd_cylinder_y(p, 0.0, radius, half_height),
-            Shape::Cup {
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-            } => cup_sdf(
-                p,
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                cup_fillet(wall_thickness, fillet_radius),
-            ),
+            Shape::Cup { .. } => self.cup().expect("a cup").sdf(p),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").sdf(p),
             Shape::Custom(ref c) => c.sdf(p),
         }
@@ -163,20 +171,7 @@ impl Shape {
     #[inline(always)]
     pub fn surely_clear(&self, p: DVec3, s: f64) -> bool {
         match *self {
-            Shape::Cup {
-                outer_radius,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-                ..
-            } => cup::cup_surely_clear(
-                p,
-                s,
-                outer_radius,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-            ),
+            Shape::Cup { .. } => self.cup().expect("a cup").surely_clear(p, s),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").surely_clear(p, s),
             _ => false,
         }
@@ -198,20 +193,7 @@ impl Shape {
                 radius,
                 half_height,
             } => Some(cylinder_hessian(p, 0.0, radius, half_height)),
-            Shape::Cup {
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-            } => Some(cup_hessian(
-                p,
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                cup_fillet(wall_thickness, fillet_radius),
-            )),
+            Shape::Cup { .. } => Some(self.cup().expect("a cup").hessian(p)),
             Shape::Spoon { .. } => Some(self.spoon().expect("a spoon").hessian(p)),
             Shape::Custom(ref c) => c.sdf_hessian(p),
         }
@@ -305,19 +287,7 @@ impl Shape {
                 positive("radius", radius)?;
                 positive("half_height", half_height)
             }
-            Shape::Cup {
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-            } => cup::cup_validate(
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-            ),
+            Shape::Cup { .. } => self.cup().expect("a cup").validate(),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").validate(),
             Shape::Custom(ref c) => c.validate(),
         }
@@ -337,19 +307,7 @@ impl Shape {
                 radius,
                 half_height,
             } => primitives::cylinder_mesh(radius, half_height),
-            Shape::Cup {
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-            } => cup::cup_mesh(
-                outer_radius,
-                height,
-                wall_thickness,
-                floor_thickness,
-                fillet_radius,
-            ),
+            Shape::Cup { .. } => self.cup().expect("a cup").mesh(),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").mesh(),
             Shape::Custom(ref c) => c.mesh(),
         }
