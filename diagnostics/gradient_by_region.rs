@@ -16,7 +16,7 @@
 //! `Σ_{j in group} w_j·x_j` with `w_j = (x_j − t)/‖x_j − t‖` fixed at Θ: at Θ its gradient is that
 //! of the group's share of eq. 5. The parts must add up to the whole gradient; the largest
 //! relative gap is printed. "all but spilled" is the gradient of a loss that leaves out the
-//! spilled grains, one of the remedies the README lists.
+//! spilled grains, one of the remedies `docs/results/skill_optimisation.md` lists.
 //!
 //! The secant is split the same way, grain by grain (a grain is the same particle in every
 //! rollout): the part from grains that end in the same group at `Θ ± H·e_k`, which a pathwise

@@ -4,7 +4,7 @@
 //! of order ε² and tiny next to `Δ₁`; a contact switch, a yield switch or a rounding that one
 //! rollout takes and another does not shows as a step where it jumps to the size of `Δ₁`. The
 //! first such step and particle are where to look (this found the chatter of particles in the
-//! sharp bottom corner of a cup; see the README, "Gradients").
+//! sharp bottom corner of a cup; see `docs/results/gradients.md`).
 //!
 //! ```sh
 //! cargo run --release --example rollout_divergence -- SCENE [EPS] [DIRECTION] [DX_M|-] [THETA]

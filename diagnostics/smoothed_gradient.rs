@@ -9,7 +9,7 @@
 //! `(L(Θ + H·e_k) − L(Θ − H·e_k))/2H` (what a step of `H` sees), then the adjoint gradient at
 //! `N` points `Θ + σ·ξ` (ξ standard normal, fixed seed) with the cosine of each to the secants,
 //! and the cosine of their mean (first-order randomised smoothing, Suh et al. 2022). The sizes
-//! of the sampled gradients are what the README's skill-optimisation section discusses.
+//! of the sampled gradients are what `docs/results/skill_optimisation.md` discusses.
 use powderlab::optim::problem::Problem;
 use powderlab::scene::Scene;
 use powderlab::study::{cosine, norm, parse_theta};

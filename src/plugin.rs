@@ -46,6 +46,12 @@ impl<T: 'static> Registry<T> {
     }
 }
 
+impl<T: 'static> Default for Registry<T> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// A variant's name, read as an identifier (what RON writes before the parentheses).
 pub struct Tag;
 

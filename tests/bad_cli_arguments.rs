@@ -1,6 +1,8 @@
 //! Bad command-line arguments are refused before any work starts, in one clear message that
 //! names the option, and leave no output file behind.
 
+#![cfg(feature = "lab")]
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -5,6 +5,8 @@
 //! of equal height. Resolutions are coarse to keep the test fast; `powderlab validate
 //! column_collapse` runs the full sweep and fits the slopes of three points per band.
 
+#![cfg(feature = "lab")]
+
 use powderlab::validate::{
     equal_height_cells, lube_runout, run_collapse, Collapse, SMALL_A_SLOPE, SMALL_A_SLOPE_TOL,
 };

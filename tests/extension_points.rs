@@ -3,6 +3,8 @@
 //! both, runs a scene that names them, and checks the adjoint through both against central
 //! differences (`docs/design.md` §6, "One place per extension").
 
+#![cfg(feature = "lab")]
+
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use powderlab::error::FieldError;

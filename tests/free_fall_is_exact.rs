@@ -1,6 +1,8 @@
 //! Free fall: with no contact, MLS-MPM reproduces the symplectic-Euler trajectory exactly,
 //! because the B-spline weights are a partition of unity with zero first moment.
 
+#![cfg(feature = "lab")]
+
 use powderlab::validate::{free_fall, FREE_FALL_REL_TOL};
 
 #[test]

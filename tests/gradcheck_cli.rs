@@ -1,6 +1,8 @@
 //! `powderlab gradcheck --json` prints one JSON object with a row per parameter and
 //! `max_rel_error`, and passes on a shipped scene.
 
+#![cfg(feature = "lab")]
+
 use std::process::Command;
 
 #[test]

@@ -7,8 +7,10 @@
 //! follows the gradient for steps of 1e-5 in Θ, but at 1e-4 it has already jumped by 8e-4,
 //! more than the gradient predicts (`∂L/∂Θ` ≈ 0.56 in norm): the loss of a scooping skill is
 //! piecewise smooth with many kinks (particles switching contact and yield states), and at
-//! steps of 1e-4 … 1e-3 RMSprop on it does not descend reliably. The README reports what that
+//! steps of 1e-4 … 1e-3 RMSprop on it does not descend reliably. `docs/results/skill_optimisation.md` reports what that
 //! means for the paper's learning rate (0.05).
+
+#![cfg(feature = "lab")]
 
 use powderlab::optim::problem::Problem;
 use powderlab::optim::rmsprop::{RmsProp, RmsState};

@@ -2,6 +2,8 @@
 //! resumed with `--resume` ends with exactly the results of an uninterrupted run, and re-uses
 //! every rollout that had finished before the kill.
 
+#![cfg(feature = "lab")]
+
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

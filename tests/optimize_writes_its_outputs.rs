@@ -1,6 +1,8 @@
 //! `powderlab optimize` with every method writes metrics.csv (a row per method, seed and
 //! epoch), summary.json, the indicator figure, and a best-rollout recording that the official
 //! Rerun CLI opens, with the loss curves in it.
+
+#![cfg(feature = "lab")]
 #![cfg(feature = "rerun")]
 
 use std::process::Command;

@@ -1,8 +1,10 @@
 //! The pile-angle case of `powderlab validate` (shared/validation/granular.md): a low column of
 //! the plane-strain collapse slab comes to rest, and the angle of its flank rises with the
-//! friction angle. granular.md's 3° band around the plane-strain angle is not met (README,
+//! friction angle. granular.md's 3° band around the plane-strain angle is not met (`docs/results/validation.md`,
 //! "Pile angle"), so it is reported by `validate pile_angle`, not asserted here; what is asserted
 //! are the laws a correct simulation cannot break.
+
+#![cfg(feature = "lab")]
 
 use powderlab::validate::pile::{
     flank_of, pile_collapse, plane_strain_angle_deg, Pile, MIN_FLANK_POINTS, PILE_FRICTION_DEG,
@@ -12,7 +14,7 @@ use serde_json::Value;
 use std::process::Command;
 
 /// Cells across L₀: the a = 0.4 column is 8 cells high, 2–3 s a pile on 2 threads. The flank
-/// angles at 20 cells are within 4.4° of those at 40 (README).
+/// angles at 20 cells are within 4.4° of those at 40 (`docs/results/validation.md`).
 const CELLS: usize = 20;
 
 /// How far a particle may move in z, in cells: the slab fills the gap between the walls'

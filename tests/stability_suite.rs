@@ -2,6 +2,8 @@
 //! or refused with a message, never in a NaN, a panic or a spurious energy gain; a stiff scene
 //! under `Strict` is refused exactly when `Auto` had to raise its substeps.
 
+#![cfg(feature = "lab")]
+
 use powderlab::validate::stability::{cases, run_case, Outcome};
 
 #[test]

@@ -1,6 +1,8 @@
 //! `powderlab study error-vs-time --quick`: the whole study's machinery on a seconds-long plan
 //! (every configuration in a child process, the CSV, the plot, the Pareto fronts, resume and bad
-//! input). The full study is `powderlab study error-vs-time` (about 20 minutes, README).
+//! input). The full study is `powderlab study error-vs-time` (about 11 minutes, `docs/results/error_vs_time.md`).
+
+#![cfg(feature = "lab")]
 
 use serde_json::Value;
 use std::path::Path;

@@ -1,6 +1,8 @@
 //! `powderlab study growth --quick`: the growth study's machinery on four small configurations
 //! (each in a child process, the JSON, CSV and SVG). Timings are reported, never asserted; the
-//! full study is `powderlab study growth` (README, "Growth").
+//! full study is `powderlab study growth` (`docs/results/performance.md`, "Growth").
+
+#![cfg(feature = "lab")]
 
 use serde_json::Value;
 use std::process::Command;

@@ -3,6 +3,8 @@
 //! a Θ that raised them would change the dynamics discontinuously between two rollouts of the
 //! optimisation (a jump in the loss that no gradient sees).
 
+#![cfg(feature = "lab")]
+
 use powderlab::optim::problem::Problem;
 use powderlab::util::SplitMix64;
 

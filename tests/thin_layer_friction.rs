@@ -7,6 +7,8 @@
 //! Drucker–Prager sand (φ = 30°, whose internal friction tan 30° = 0.58 exceeds the floor's 0.5,
 //! so the layer slides on the floor rather than shearing inside).
 
+#![cfg(feature = "lab")]
+
 mod common;
 
 /// Launch speed (m/s), floor friction, gravity.

@@ -3,6 +3,8 @@
 //! the self-weight column at one particle per cell, and the scale invariance of a column
 //! collapse.
 
+#![cfg(feature = "lab")]
+
 use powderlab::validate::{bar, column, incline, scale_invariance};
 
 #[test]

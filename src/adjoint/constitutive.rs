@@ -111,11 +111,11 @@ pub fn constitutive_model_adjoint<M: Material>(
                         seen,
                         gc[j].is_finite() && gs[j].is_finite() && gft[j].is_finite(),
                     );
-                    *pm = pm.add(&out.g_material);
+                    *pm = *pm + out.g_material;
                     ga[j] = DMat3::ZERO;
                     gf[j] = DMat3::ZERO;
                 }
             });
-        *g_mat = partial.iter().fold(*g_mat, |a, b| a.add(b));
+        *g_mat = partial.iter().fold(*g_mat, |a, b| a + *b);
     }
 }

@@ -34,12 +34,12 @@ pub struct Args {
     /// Last epoch of the curriculum's scoop-only phase (θ_d, θ_s, θ_l).
     #[arg(long, default_value_t = 15)]
     curriculum_switch: usize,
-    /// Scale each gradient to unit length before RMSprop (not the paper's method; see the
-    /// README's skill-optimisation section).
+    /// Scale each gradient to unit length before RMSprop (not the paper's method; see
+    /// `docs/results/skill_optimisation.md`).
     #[arg(long)]
     grad_normalize: bool,
     /// Clip each gradient to the median length of the seed's gradients so far before RMSprop
-    /// (not the paper's method; see the README's skill-optimisation section).
+    /// (not the paper's method; see `docs/results/skill_optimisation.md`).
     #[arg(long)]
     grad_clip_median: bool,
     /// CMA-ES samples per generation.

@@ -72,9 +72,10 @@ pub const MAX_MATERIAL_PARAMS: usize = 4;
 #[derive(Component, Clone, Copy, Debug, Default, PartialEq)]
 pub struct MaterialAdj(pub [f64; MAX_MATERIAL_PARAMS]);
 
-impl MaterialAdj {
-    /// Entry by entry `self + other`.
-    pub fn add(self, other: &MaterialAdj) -> MaterialAdj {
+impl std::ops::Add for MaterialAdj {
+    type Output = MaterialAdj;
+    /// Entry by entry.
+    fn add(self, other: MaterialAdj) -> MaterialAdj {
         MaterialAdj(std::array::from_fn(|i| self.0[i] + other.0[i]))
     }
 }

@@ -12,7 +12,7 @@
 //! number of rollouts so far ("epoch"). What a method has found after `k` rollouts is its
 //! rollout of lowest loss among the first `k` (the loss is what every method can see; the
 //! indicator is the task's score of that rollout). For grad this need not be its latest iterate:
-//! on the transport scene the loss is rough at RMSprop's step size (see the README).
+//! on the transport scene the loss is rough at RMSprop's step size (see `docs/results/skill_optimisation.md`).
 //!
 //! **Seeds.** Seed `k` draws Θ_init uniformly in [−1, 1]⁵ from a fixed generator
 //! ([`theta_init`]); every method starts seed `k` from the same Θ_init, and the methods' own

@@ -12,7 +12,7 @@
 //! Optionally (`normalize`, off by default: the paper's method is the default) the gradient of
 //! the parameters allowed to move is scaled to unit length before it enters the running mean
 //! square. On the transport scene single rollouts return gradients hundreds of times the usual
-//! size (contacts in a chaotic pour; measured in the README), and one such spike holds `s` up
+//! size (contacts in a chaotic pour; measured in `docs/results/skill_optimisation.md`), and one such spike holds `s` up
 //! for tens of epochs (it decays by β = 0.9 per epoch), shrinking every later step to almost
 //! nothing. A unit gradient keeps the direction and lets no single rollout set the step size.
 //!
@@ -20,7 +20,7 @@
 //! seed's gradients so far, its own included, is scaled down to that median: a robust cap with
 //! no constant to tune, which keeps a spike's direction, keeps small gradients small (unlike
 //! `normalize`) and keeps `s` at the usual scale. Neither beats the paper's method on the
-//! transport scene (measured in the README); the driver rebuilds the seed's history of lengths
+//! transport scene (measured in `docs/results/skill_optimisation.md`); the driver rebuilds the seed's history of lengths
 //! from the journal on `--resume`, so a resumed run takes the same steps.
 
 use serde::{Deserialize, Serialize};

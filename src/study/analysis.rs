@@ -242,7 +242,7 @@ pub fn csv(rows: &[Row]) -> String {
     s
 }
 
-/// A Markdown table of the analysis (for the README and the terminal).
+/// A Markdown table of the analysis (for `docs/results/error_vs_time.md` and the terminal).
 pub fn markdown(rows: &[Row]) -> String {
     let pct = |v: Option<f64>| v.map_or(String::new(), crate::util::percent);
     let mut s = String::from(

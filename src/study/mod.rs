@@ -257,7 +257,7 @@ pub fn transport_at(scene: &Scene, dx: f64, gradient: bool, threads: Option<usiz
     }
 }
 
-/// The plans: `full` is the study in the README; `quick` is a seconds-long version for tests.
+/// The plans: `full` is the study of `docs/results/error_vs_time.md`; `quick` is a seconds-long version for tests.
 /// The transport levels are multiples of the scene's own cell size (5 mm for the shipped scene),
 /// and its particles per cell and substeps are the other sweeps' base.
 pub fn plan(

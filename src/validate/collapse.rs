@@ -115,7 +115,6 @@ impl CollapseResult {
 
     /// A result carrying only what the checks read (the run's bookkeeping at 1 or empty), for
     /// the unit tests of the checks built on it.
-
     #[cfg(test)]
     pub(crate) fn for_checks(
         aspect: f64,
