@@ -88,7 +88,8 @@ pub const GROUPS: [&str; 7] = [
     "v0", "x0", "material", "friction", "gravity", "tool", "skill",
 ];
 
-/// Runs the comparison for the chosen parameter groups.
+/// Runs the comparison for the chosen parameter groups, each at its own central-difference
+/// step.
 pub fn run(
     scene: &Scene,
     steps: usize,
@@ -96,6 +97,24 @@ pub fn run(
     threads: Option<usize>,
     budget_bytes: usize,
 ) -> anyhow::Result<Report> {
+    run_scaled(scene, steps, groups, threads, budget_bytes, 1.0)
+}
+
+/// [`run`] with every central-difference step multiplied by `eps_scale`: a sweep over it tells
+/// a wrong adjoint (no step agrees) from a contact switch inside ±ε (large steps agree, small
+/// ones do not, or the reverse).
+pub fn run_scaled(
+    scene: &Scene,
+    steps: usize,
+    groups: &[String],
+    threads: Option<usize>,
+    budget_bytes: usize,
+    eps_scale: f64,
+) -> anyhow::Result<Report> {
+    anyhow::ensure!(
+        eps_scale.is_finite() && eps_scale > 0.0,
+        "--eps-scale {eps_scale}: expected a positive factor, such as 0.01 or 100"
+    );
     for g in groups {
         anyhow::ensure!(
             GROUPS.contains(&g.as_str()),
@@ -142,7 +161,7 @@ pub fn run(
     let has = |name: &str| groups.iter().any(|g| g == name);
     let axes = [("x", DVec3::X), ("y", DVec3::Y), ("z", DVec3::Z)];
     if has("v0") {
-        let eps = 1e-6;
+        let eps = 1e-6 * eps_scale;
         for (k, (name, e)) in axes.iter().enumerate() {
             let ad: f64 = g.v0.iter().flatten().map(|v| v[k]).sum();
             let p = forward_loss(scene, steps, threads, *e * eps, DVec3::ZERO, &loss)?;
@@ -151,7 +170,7 @@ pub fn run(
         }
     }
     if has("x0") {
-        let eps = 1e-7;
+        let eps = 1e-7 * eps_scale;
         for (k, (name, e)) in axes.iter().enumerate() {
             let ad: f64 = g.x0.iter().flatten().map(|v| v[k]).sum();
             let p = forward_loss(scene, steps, threads, DVec3::ZERO, *e * eps, &loss)?;
@@ -174,7 +193,7 @@ pub fn run(
             for (k, param) in spec.params().iter().enumerate() {
                 let ad: f64 = users.iter().map(|&i| g.material[i].0[k]).sum();
                 let value = spec.param(k);
-                let eps = param.fd_step.at(value);
+                let eps = param.fd_step.at(value) * eps_scale;
                 let mut sp = scene.clone();
                 sp.materials
                     .insert(mname.clone(), spec.with_param(k, value + eps));
@@ -188,7 +207,7 @@ pub fn run(
         }
     }
     if has("friction") {
-        let eps = 1e-6;
+        let eps = 1e-6 * eps_scale;
         for (i, (name, ad)) in g.friction.iter().enumerate() {
             let mut sp = scene.clone();
             sp.colliders[i].friction += eps;
@@ -205,7 +224,7 @@ pub fn run(
     if has("tool") {
         // Tools with a constant velocity: the gradient w.r.t. that velocity is Σ_steps ∂L/∂u·Δt.
         let dt = scene.simulation.dt;
-        let eps = 1e-7;
+        let eps = 1e-7 * eps_scale;
         for (i, c) in scene.colliders.iter().enumerate() {
             let Some((_, gu)) = g.controls.iter().find(|(n, _)| n == &c.name) else {
                 continue;
@@ -244,7 +263,7 @@ pub fn run(
     if has("skill") {
         // Θ of skill-driven tools; ε is small enough that no phase's step count changes (a
         // change would be a jump the straight-through gradient does not see).
-        let eps = 1e-7;
+        let eps = 1e-7 * eps_scale;
         for (name, gt) in &scene.skill_gradients(&g.controls) {
             let i = scene
                 .colliders
@@ -276,7 +295,7 @@ pub fn run(
         }
     }
     if has("gravity") {
-        let eps = 1e-6;
+        let eps = 1e-6 * eps_scale;
         let mut sp = scene.clone();
         sp.simulation.gravity.1 += eps;
         let mut sm = scene.clone();

@@ -91,6 +91,9 @@ pub fn phase_steps(distance: f64, speed: f64, dt: f64) -> usize {
 /// The six phases, in order.
 pub const PHASES: [&str; 6] = ["descend", "scoop", "lift", "transport", "pour", "settle"];
 
+/// The skill parameters' names, in Θ's order.
+pub const PARAM_NAMES: [&str; 5] = ["θ_d", "θ_s", "θ_l", "θ_t", "θ_p"];
+
 /// The most steps a tool's control (a skill's motion, a constant velocity) may take. A slow
 /// speed or a tiny `dt` in a scene file would otherwise ask for an absurd horizon, whose
 /// per-step controls alone (48 bytes a step) exhaust the memory before the first step; a

@@ -28,6 +28,10 @@ pub struct Args {
     /// Largest relative error that passes.
     #[arg(long, default_value_t = 1e-3)]
     tol: f64,
+    /// Multiply every central-difference step by this factor (a sweep over it tells a wrong
+    /// adjoint from a contact switch inside the step).
+    #[arg(long, default_value_t = 1.0)]
+    eps_scale: f64,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -42,6 +46,7 @@ pub fn run(a: Args) -> Result<()> {
         threads,
         budget_mb,
         tol,
+        eps_scale,
         json: json_out,
     } = a;
     if !(tol.is_finite() && tol > 0.0) {
@@ -67,7 +72,8 @@ pub fn run(a: Args) -> Result<()> {
             scene.display()
         );
     }
-    let r = powderlab::gradcheck::run(&sc, steps, &params, threads, budget_mb << 20)?;
+    let r =
+        powderlab::gradcheck::run_scaled(&sc, steps, &params, threads, budget_mb << 20, eps_scale)?;
     let passed = r.max_rel_error <= tol;
     if json_out {
         let mut v = serde_json::to_value(&r)?;

@@ -171,34 +171,45 @@ pub fn run(args: Args) -> Result<()> {
     }
     let unit = r.summary["indicator_unit"].as_str().unwrap_or("");
     println!(
-        "{:<8} {:>26} {:>26} {:>9} {:>9}",
+        "{:<8} {:>24} {:>18} {:>24} {:>14} {:>9} {:>9}",
         "method",
-        format!("initial indicator ({unit})"),
-        format!("final indicator ({unit})"),
+        format!("dose error ({unit})"),
+        "signed indicator",
+        "dose error, equal compute",
+        "G p-substeps",
         "rollouts",
         "wall s"
     );
     if let Some(ms) = r.summary["methods"].as_object() {
         for (name, m) in ms {
             let f = |k: &str| m[k].as_f64().unwrap_or(f64::NAN);
+            let e = |k: &str| m["equal_compute"][k].as_f64().unwrap_or(f64::NAN);
             println!(
-                "{:<8} {:>26} {:>26} {:>9} {:>9.1}",
+                "{:<8} {:>24} {:>18} {:>24} {:>14.3} {:>9} {:>9.1}",
                 name,
                 format!(
                     "{:.3} ± {:.3}",
-                    f("initial_indicator_mean"),
-                    f("initial_indicator_std")
+                    f("final_dose_error_mean"),
+                    f("final_dose_error_std")
                 ),
+                format!("{:+.3}", f("final_indicator_mean")),
                 format!(
-                    "{:.3} ± {:.3}",
-                    f("final_indicator_mean"),
-                    f("final_indicator_std")
+                    "{:.3} ± {:.3} ({:.1})",
+                    e("dose_error_mean"),
+                    e("dose_error_std"),
+                    e("rollouts_mean")
                 ),
+                f("particle_substeps_per_seed_mean") / 1e9,
                 m["rollouts_per_seed"].as_u64().unwrap_or(0) * seeds as u64,
                 f("wall_s")
             );
         }
     }
+    eprintln!(
+        "best so far = {}; equal compute = each seed's rollouts up to the fewest particle-substeps any method spent on it (a backward pass at {}x a forward), with the mean rollouts that fit in brackets",
+        r.summary["selection"].as_str().unwrap_or(""),
+        r.summary["backward_cost"]
+    );
     eprintln!(
         "{} rollouts simulated, {} replayed from the journal; results in {}",
         r.ran,

@@ -25,7 +25,8 @@
 //! depend on the number of threads.
 //!
 //! **Outputs** (in `--out DIR`, each written atomically): `metrics.csv`, `summary.json`,
-//! `indicator.svg`, `best.rrd`, plus `journal.jsonl` and `settings.json`, which `--resume` uses
+//! `indicator.svg`, `best.rrd`, `sac.csv` (SAC's temperature and reward scale per episode), plus
+//! `journal.jsonl` and `settings.json`, which `--resume` uses
 //! ([`journal`]).
 
 pub mod cma;
@@ -47,6 +48,7 @@ use rmsprop::{RmsProp, RmsState};
 use sac::{Sac, SacConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::fmt::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::Instant;
@@ -234,6 +236,8 @@ impl Runner<'_> {
         let mut agents: Vec<Sac> = (0..s.seeds)
             .map(|k| Sac::new(s.sac, theta_init(k), method_seed(Method::Sac, k)))
             .collect::<candle_core::Result<_>>()?;
+        // The temperature and the reward's standardisation, per seed and episode.
+        let mut log = String::from("seed,episode,alpha,loss_mean,loss_std\n");
         for episode in 0..s.epochs {
             let actions: Vec<[f64; 5]> = agents
                 .iter_mut()
@@ -248,6 +252,11 @@ impl Runner<'_> {
                 .par_iter_mut()
                 .zip(recs.par_iter())
                 .try_for_each(|(a, r)| a.observe(r.theta, r.outcome.loss))?;
+            for (k, a) in agents.iter().enumerate() {
+                let (alpha, mean, std) = a.stats()?;
+                let _ = writeln!(log, "{k},{},{alpha},{mean},{std}", episode + 1);
+            }
+            write_atomic(&self.board.out.join("sac.csv"), log.as_bytes())?;
         }
         Ok(())
     }
