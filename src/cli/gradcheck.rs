@@ -100,7 +100,7 @@ pub fn run(a: Args) -> Result<()> {
                 )
             } else if let Some(e) = row.one_sided_rel_error {
                 format!(
-                    "kink at this point: one-sided differences {:.6e} (−) and {:.6e} (+); the adjoint takes one side, to {e:.1e}",
+                    "kink at this point: one-sided differences {:.6e} (−) and {:.6e} (+); the adjoint matches the nearest of them and their mean to {e:.1e}",
                     row.one_sided[0], row.one_sided[1]
                 )
             } else {
@@ -112,7 +112,7 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
         println!(
-            "max relative error (non-zero gradients; at a kink, against the side the adjoint takes) {:.2e}: {}",
+            "max relative error (non-zero gradients; at a kink, against the nearest side or their mean) {:.2e}: {}",
             r.max_rel_error,
             if passed { "PASS" } else { "FAIL" }
         );
