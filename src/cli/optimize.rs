@@ -10,8 +10,9 @@ use std::path::PathBuf;
 pub struct Args {
     /// The scene whose tool has a skill control.
     scene: PathBuf,
-    /// grad, cmaes, sac, random or all (comma separated).
-    #[arg(long, value_delimiter = ',', default_value = "all")]
+    /// grad, cmaes, sac, random, smoothed, paper (the first four, the default) or all (comma
+    /// separated).
+    #[arg(long, value_delimiter = ',', default_value = "paper")]
     method: Vec<String>,
     /// Rollouts per seed and method (the gradient method's epochs).
     #[arg(long, default_value_t = 30)]
@@ -54,6 +55,12 @@ pub struct Args {
     /// SAC gradient steps after each rollout.
     #[arg(long, default_value_t = 20)]
     sac_updates: usize,
+    /// The smoothed method's gradient rollouts per step.
+    #[arg(long, default_value_t = 4)]
+    smooth_samples: usize,
+    /// The smoothed method's noise on Θ (standard deviation).
+    #[arg(long, default_value_t = 0.05)]
+    smooth_sigma: f64,
     /// Memory budget of a backward pass's tape in MB.
     #[arg(long, default_value_t = 1024)]
     budget_mb: usize,
@@ -80,6 +87,8 @@ pub fn run(args: Args) -> Result<()> {
         cmaes_sigma,
         sac_batch,
         sac_updates,
+        smooth_samples,
+        smooth_sigma,
         budget_mb,
         json: json_out,
     } = args;
@@ -95,7 +104,9 @@ pub fn run(args: Args) -> Result<()> {
                     }
                 }
             }
-            None => bail!("--method {m}: expected grad, cmaes, sac, random or all"),
+            None => {
+                bail!("--method {m}: expected grad, cmaes, sac, random, smoothed, paper or all")
+            }
         }
     }
     if !(lr > 0.0 && lr.is_finite()) {
@@ -109,6 +120,16 @@ pub fn run(args: Args) -> Result<()> {
     }
     if sac_batch == 0 {
         bail!("--sac-batch 0: expected at least 1");
+    }
+    if smooth_samples < 2 {
+        bail!(
+            "--smooth-samples {smooth_samples}: expected at least 2 (the estimates need a spread)"
+        );
+    }
+    if !(smooth_sigma > 0.0 && smooth_sigma.is_finite()) {
+        bail!(
+            "--smooth-sigma {smooth_sigma}: expected a positive standard deviation, such as 0.05"
+        );
     }
     let sc = powderlab::scene::Scene::load(&scene)?;
     let problem = optim::problem::Problem::new(sc.clone(), budget_mb << 20)?;
@@ -139,6 +160,10 @@ pub fn run(args: Args) -> Result<()> {
             batch: sac_batch,
             updates_per_rollout: sac_updates,
             ..Default::default()
+        },
+        smoothing: optim::SmoothingConfig {
+            samples: smooth_samples,
+            sigma: smooth_sigma,
         },
         tape_budget: budget_mb << 20,
     };

@@ -7,6 +7,11 @@
 //! - **cmaes**: CMA-ES from the same Θ_init ([`cma`]).
 //! - **sac**: soft actor-critic over Θ, one rollout per episode, reward `−L` ([`sac`]).
 //! - **random**: Θ_init, then uniform draws in [−1, 1]⁵.
+//! - **smoothed** (not the paper's; by name only, not in the default set): seed B's smoothed
+//!   gradient ([`smoothing`]). Each step runs `K` gradient rollouts at `Θ + σξ_k` (Θ's noise
+//!   only; the powder's packing is the scene's), and RMSprop with the paper's settings and
+//!   curriculum takes the α-order estimate. With the same rollouts per seed it takes `K` times
+//!   fewer steps; the curriculum frees θ_t and θ_p after the same number of rollouts as grad.
 //!
 //! **Budget.** Every method gets `epochs` rollouts per seed; the x-axis of the results is the
 //! number of rollouts so far ("epoch"). What a method has found after `k` rollouts is its
@@ -35,20 +40,21 @@ pub mod plot;
 pub mod problem;
 pub mod report;
 pub mod rmsprop;
+mod runner;
 pub mod sac;
+pub mod smoothing;
 
 use crate::util::{write_atomic, SplitMix64};
 use anyhow::{bail, Context};
-use cma::{reflect, CmaConfig};
+use cma::CmaConfig;
 use indicatif::{ProgressBar, ProgressStyle};
 use journal::{Journal, Record};
 use problem::Problem;
-use rayon::prelude::*;
-use rmsprop::{RmsProp, RmsState};
-use sac::{Sac, SacConfig};
+use rmsprop::RmsProp;
+use runner::{Board, Runner};
+use sac::SacConfig;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::fmt::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::time::Instant;
@@ -61,10 +67,20 @@ pub enum Method {
     Cmaes,
     Sac,
     Random,
+    Smoothed,
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [Method::Grad, Method::Cmaes, Method::Sac, Method::Random];
+    /// Every method.
+    pub const ALL: [Method; 5] = [
+        Method::Grad,
+        Method::Cmaes,
+        Method::Sac,
+        Method::Random,
+        Method::Smoothed,
+    ];
+    /// The paper's comparison: `optimize`'s default.
+    pub const PAPER: [Method; 4] = [Method::Grad, Method::Cmaes, Method::Sac, Method::Random];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -72,13 +88,17 @@ impl Method {
             Method::Cmaes => "cmaes",
             Method::Sac => "sac",
             Method::Random => "random",
+            Method::Smoothed => "smoothed",
         }
     }
 
-    /// Parses a method name, or `all`.
+    /// Parses a method name, `paper` (the paper's four) or `all`.
     pub fn parse_list(s: &str) -> Option<Vec<Method>> {
         if s == "all" {
             return Some(Method::ALL.to_vec());
+        }
+        if s == "paper" {
+            return Some(Method::PAPER.to_vec());
         }
         Method::ALL.iter().find(|m| m.name() == s).map(|m| vec![*m])
     }
@@ -96,8 +116,29 @@ pub struct Settings {
     pub rmsprop: RmsProp,
     pub cmaes: CmaConfig,
     pub sac: SacConfig,
+    /// The smoothed method's samples and noise.
+    #[serde(default)]
+    pub smoothing: SmoothingConfig,
     /// Memory budget of a backward pass's tape (bytes).
     pub tape_budget: usize,
+}
+
+/// The smoothed method's settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SmoothingConfig {
+    /// Gradient rollouts per step. Default 4.
+    pub samples: usize,
+    /// Standard deviation of the noise on Θ. Default 0.05 (an RMSprop step is about 0.16).
+    pub sigma: f64,
+}
+
+impl Default for SmoothingConfig {
+    fn default() -> Self {
+        Self {
+            samples: 4,
+            sigma: 0.05,
+        }
+    }
 }
 
 /// How to run.
@@ -127,222 +168,8 @@ pub fn theta_init(k: usize) -> [f64; 5] {
 }
 
 /// Seed of a method's own generator for seed `k`.
-fn method_seed(m: Method, k: usize) -> u64 {
+pub(crate) fn method_seed(m: Method, k: usize) -> u64 {
     ((m as u64 + 1) << 32) + k as u64
-}
-
-/// The records of a run so far, with progress display and `metrics.csv` kept current.
-struct Board {
-    records: Mutex<BTreeMap<(Method, usize), Vec<Record>>>,
-    bar: ProgressBar,
-    out: PathBuf,
-    unit: &'static str,
-}
-
-impl Board {
-    fn push(&self, r: Record) -> anyhow::Result<()> {
-        let mut all = self.records.lock().expect("board lock");
-        let list = all.entry((r.method, r.seed)).or_default();
-        list.push(r.clone());
-        report::sort_rollouts(list);
-        let done = list.len();
-        // Written under the lock: concurrent rollouts share the temporary file name.
-        write_atomic(
-            &self.out.join("metrics.csv"),
-            report::metrics_csv(&all).as_bytes(),
-        )?;
-        drop(all);
-        self.bar.inc(1);
-        self.bar.set_message(format!(
-            "{} seed {} epoch {done}: loss {:.4e}, indicator {:.3} {}",
-            r.method.name(),
-            r.seed,
-            r.outcome.loss,
-            r.outcome.indicator,
-            self.unit
-        ));
-        Ok(())
-    }
-}
-
-/// Runs rollouts through the journal.
-struct Runner<'a> {
-    problem: &'a Problem,
-    journal: &'a Journal,
-    board: &'a Board,
-    /// When this process started the method, and the method's time carried over from the
-    /// processes before it (`Journal::carried_elapsed`).
-    start: Instant,
-    carried: f64,
-}
-
-impl Runner<'_> {
-    /// One rollout: replayed from the journal if recorded, else simulated and recorded.
-    fn rollout(
-        &self,
-        method: Method,
-        seed: usize,
-        batch: usize,
-        theta: [f64; 5],
-        with_grad: bool,
-    ) -> anyhow::Result<Record> {
-        let r = match self.journal.replay(method, seed, batch, &theta) {
-            Some(r) => r,
-            None => {
-                let o = self.problem.evaluate(theta, with_grad, true)?;
-                let r = Record {
-                    method,
-                    seed,
-                    batch,
-                    theta,
-                    outcome: o,
-                    method_elapsed_s: Some(self.carried + self.start.elapsed().as_secs_f64()),
-                };
-                self.journal.append(&r)?;
-                r
-            }
-        };
-        self.board.push(r.clone())?;
-        Ok(r)
-    }
-
-    fn grad(&self, s: &Settings) -> anyhow::Result<()> {
-        let mut states: Vec<RmsState> = (0..s.seeds)
-            .map(|k| RmsState {
-                theta: theta_init(k),
-                mean_square: [0.0; 5],
-            })
-            .collect();
-        let mut norms: Vec<Vec<f64>> = vec![Vec::new(); s.seeds];
-        for epoch in 1..=s.epochs {
-            let recs: Vec<Record> = states
-                .par_iter()
-                .enumerate()
-                .map(|(k, st)| self.rollout(Method::Grad, k, epoch - 1, st.theta, true))
-                .collect::<anyhow::Result<_>>()?;
-            for ((st, r), h) in states.iter_mut().zip(&recs).zip(&mut norms) {
-                let g = r
-                    .outcome
-                    .grad
-                    .context("a grad rollout without its gradient")?;
-                let g = s.rmsprop.clip(g, epoch, h);
-                s.rmsprop.step(st, g, epoch);
-            }
-        }
-        Ok(())
-    }
-
-    fn sac(&self, s: &Settings) -> anyhow::Result<()> {
-        let mut agents: Vec<Sac> = (0..s.seeds)
-            .map(|k| Sac::new(s.sac, theta_init(k), method_seed(Method::Sac, k)))
-            .collect::<candle_core::Result<_>>()?;
-        // The temperature and the reward's standardisation, per seed and episode.
-        let mut log = String::from("seed,episode,alpha,loss_mean,loss_std\n");
-        for episode in 0..s.epochs {
-            let actions: Vec<[f64; 5]> = agents
-                .iter_mut()
-                .map(|a| a.act())
-                .collect::<candle_core::Result<_>>()?;
-            let recs: Vec<Record> = actions
-                .par_iter()
-                .enumerate()
-                .map(|(k, th)| self.rollout(Method::Sac, k, episode, *th, false))
-                .collect::<anyhow::Result<_>>()?;
-            agents
-                .par_iter_mut()
-                .zip(recs.par_iter())
-                .try_for_each(|(a, r)| a.observe(r.theta, r.outcome.loss))?;
-            for (k, a) in agents.iter().enumerate() {
-                let (alpha, mean, std) = a.stats()?;
-                let _ = writeln!(log, "{k},{},{alpha},{mean},{std}", episode + 1);
-            }
-            write_atomic(&self.board.out.join("sac.csv"), log.as_bytes())?;
-        }
-        Ok(())
-    }
-
-    fn random(&self, s: &Settings) -> anyhow::Result<()> {
-        let jobs: Vec<(usize, usize, [f64; 5])> = (0..s.seeds)
-            .flat_map(|k| {
-                let mut rng = SplitMix64(method_seed(Method::Random, k));
-                (0..s.epochs).map(move |i| {
-                    let th = if i == 0 {
-                        theta_init(k)
-                    } else {
-                        std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))
-                    };
-                    (k, i, th)
-                })
-            })
-            .collect();
-        jobs.par_iter()
-            .map(|&(k, i, th)| self.rollout(Method::Random, k, i, th, false).map(|_| ()))
-            .collect::<anyhow::Result<()>>()
-    }
-
-    fn cmaes(&self, s: &Settings) -> anyhow::Result<()> {
-        let lambda = s.cmaes.population.max(2);
-        let generations = s.epochs.div_ceil(lambda);
-        let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
-        // Per seed: the generation being evaluated and how many rollouts it may still run.
-        let gens: Vec<Mutex<(usize, usize)>> = (0..s.seeds).map(|_| Mutex::new((0, 0))).collect();
-        let objectives: Vec<_> = (0..s.seeds)
-            .map(|k| {
-                let (gens, failure) = (&gens, &failure);
-                move |x: &cmaes::DVector<f64>| -> f64 {
-                    let th: [f64; 5] = std::array::from_fn(|i| reflect(x[i]));
-                    let generation = {
-                        let mut g = gens[k].lock().expect("lock");
-                        if g.1 == 0 {
-                            // Past the budget in a last, partial generation: not run.
-                            return f64::MAX;
-                        }
-                        g.1 -= 1;
-                        g.0
-                    };
-                    match self.rollout(Method::Cmaes, k, generation, th, false) {
-                        Ok(r) => r.outcome.loss,
-                        Err(e) => {
-                            failure.lock().expect("lock").get_or_insert(e);
-                            f64::NAN
-                        }
-                    }
-                }
-            })
-            .collect();
-        let mut states: Vec<_> = objectives
-            .iter()
-            .enumerate()
-            .map(|(k, f)| {
-                cmaes::CMAESOptions::new(theta_init(k).to_vec(), s.cmaes.sigma0)
-                    .population_size(lambda)
-                    .seed(method_seed(Method::Cmaes, k))
-                    .build(f)
-                    .map_err(|e| anyhow::anyhow!("CMA-ES options: {e:?}"))
-            })
-            .collect::<anyhow::Result<_>>()?;
-        for generation in 0..generations {
-            let budget = (s.epochs - generation * lambda).min(lambda);
-            for g in &gens {
-                *g.lock().expect("lock") = (generation, budget);
-            }
-            // A termination criterion of the crate (e.g. a flat objective) ends nothing here:
-            // the method gets its whole budget, like the others.
-            states.par_iter_mut().for_each(|st| {
-                let _ = if budget == lambda {
-                    st.next_parallel()
-                } else {
-                    // A partial generation runs in the sampler's order, so which samples fit
-                    // the budget does not depend on the threads.
-                    st.next()
-                };
-            });
-            if let Some(e) = failure.lock().expect("lock").take() {
-                return Err(e);
-            }
-        }
-        Ok(())
-    }
 }
 
 /// What `run` reports.
@@ -425,6 +252,7 @@ pub fn run(problem: &Problem, opts: &Options) -> anyhow::Result<RunSummary> {
             Method::Cmaes => runner.cmaes(s)?,
             Method::Sac => runner.sac(s)?,
             Method::Random => runner.random(s)?,
+            Method::Smoothed => runner.smoothed(s)?,
         }
         elapsed.insert(m, runner.carried + runner.start.elapsed().as_secs_f64());
     }

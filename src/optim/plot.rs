@@ -15,6 +15,7 @@ fn colour(m: Method) -> RGBColor {
         Method::Cmaes => RGBColor(44, 160, 44),
         Method::Sac => RGBColor(214, 39, 40),
         Method::Random => RGBColor(127, 127, 127),
+        Method::Smoothed => RGBColor(148, 103, 189),
     }
 }
 

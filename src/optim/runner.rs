@@ -1,0 +1,291 @@
+//! Running the methods: each method's loop over its rollouts ([`Runner`]), every rollout
+//! through the journal (replayed when recorded), and the board that keeps `metrics.csv` and the
+//! progress bar current.
+
+use super::cma::reflect;
+use super::journal::{Journal, Record};
+use super::problem::Problem;
+use super::rmsprop::RmsState;
+use super::sac::Sac;
+use super::{method_seed, report, smoothing, theta_init, Method, Settings};
+use crate::util::{write_atomic, SplitMix64};
+use anyhow::Context;
+use indicatif::ProgressBar;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+use std::fmt::Write;
+use std::path::PathBuf;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// The records of a run so far, with progress display and `metrics.csv` kept current.
+pub(super) struct Board {
+    pub(super) records: Mutex<BTreeMap<(Method, usize), Vec<Record>>>,
+    pub(super) bar: ProgressBar,
+    pub(super) out: PathBuf,
+    pub(super) unit: &'static str,
+}
+
+impl Board {
+    fn push(&self, r: Record) -> anyhow::Result<()> {
+        let mut all = self.records.lock().expect("board lock");
+        let list = all.entry((r.method, r.seed)).or_default();
+        list.push(r.clone());
+        report::sort_rollouts(list);
+        let done = list.len();
+        // Written under the lock: concurrent rollouts share the temporary file name.
+        write_atomic(
+            &self.out.join("metrics.csv"),
+            report::metrics_csv(&all).as_bytes(),
+        )?;
+        drop(all);
+        self.bar.inc(1);
+        self.bar.set_message(format!(
+            "{} seed {} epoch {done}: loss {:.4e}, indicator {:.3} {}",
+            r.method.name(),
+            r.seed,
+            r.outcome.loss,
+            r.outcome.indicator,
+            self.unit
+        ));
+        Ok(())
+    }
+}
+
+/// Runs rollouts through the journal.
+pub(super) struct Runner<'a> {
+    pub(super) problem: &'a Problem,
+    pub(super) journal: &'a Journal,
+    pub(super) board: &'a Board,
+    /// When this process started the method, and the method's time carried over from the
+    /// processes before it (`Journal::carried_elapsed`).
+    pub(super) start: Instant,
+    pub(super) carried: f64,
+}
+
+impl Runner<'_> {
+    /// One rollout: replayed from the journal if recorded, else simulated and recorded.
+    fn rollout(
+        &self,
+        method: Method,
+        seed: usize,
+        batch: usize,
+        theta: [f64; 5],
+        with_grad: bool,
+    ) -> anyhow::Result<Record> {
+        let r = match self.journal.replay(method, seed, batch, &theta) {
+            Some(r) => r,
+            None => {
+                let o = self.problem.evaluate(theta, with_grad, true)?;
+                let r = Record {
+                    method,
+                    seed,
+                    batch,
+                    theta,
+                    outcome: o,
+                    method_elapsed_s: Some(self.carried + self.start.elapsed().as_secs_f64()),
+                };
+                self.journal.append(&r)?;
+                r
+            }
+        };
+        self.board.push(r.clone())?;
+        Ok(r)
+    }
+
+    pub(super) fn grad(&self, s: &Settings) -> anyhow::Result<()> {
+        let mut states: Vec<RmsState> = (0..s.seeds)
+            .map(|k| RmsState {
+                theta: theta_init(k),
+                mean_square: [0.0; 5],
+            })
+            .collect();
+        let mut norms: Vec<Vec<f64>> = vec![Vec::new(); s.seeds];
+        for epoch in 1..=s.epochs {
+            let recs: Vec<Record> = states
+                .par_iter()
+                .enumerate()
+                .map(|(k, st)| self.rollout(Method::Grad, k, epoch - 1, st.theta, true))
+                .collect::<anyhow::Result<_>>()?;
+            for ((st, r), h) in states.iter_mut().zip(&recs).zip(&mut norms) {
+                let g = r
+                    .outcome
+                    .grad
+                    .context("a grad rollout without its gradient")?;
+                let g = s.rmsprop.clip(g, epoch, h);
+                s.rmsprop.step(st, g, epoch);
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn smoothed(&self, s: &Settings) -> anyhow::Result<()> {
+        let (n, sigma) = (s.smoothing.samples.max(2), s.smoothing.sigma);
+        let mut states: Vec<RmsState> = (0..s.seeds)
+            .map(|k| RmsState {
+                theta: theta_init(k),
+                mean_square: [0.0; 5],
+            })
+            .collect();
+        let mut rngs: Vec<SplitMix64> = (0..s.seeds)
+            .map(|k| SplitMix64(method_seed(Method::Smoothed, k)))
+            .collect();
+        for step in 1..=s.epochs / n {
+            // Θ + σξ for every seed and sample, clamped to the box; ξ is recomputed from the
+            // clamped point so the zeroth-order estimate uses the Θ that ran.
+            let jobs: Vec<(usize, [f64; 5], [f64; 5])> = states
+                .iter()
+                .zip(&mut rngs)
+                .enumerate()
+                .flat_map(|(k, (st, rng))| {
+                    (0..n)
+                        .map(|_| {
+                            let t: [f64; 5] = std::array::from_fn(|i| {
+                                (st.theta[i] + sigma * rng.normal()).clamp(-1.0, 1.0)
+                            });
+                            let xi = std::array::from_fn(|i| (t[i] - st.theta[i]) / sigma);
+                            (k, t, xi)
+                        })
+                        .collect::<Vec<_>>()
+                })
+                .collect();
+            let recs: Vec<Record> = jobs
+                .par_iter()
+                .map(|&(k, t, _)| self.rollout(Method::Smoothed, k, step - 1, t, true))
+                .collect::<anyhow::Result<_>>()?;
+            for (k, st) in states.iter_mut().enumerate() {
+                let samples: Vec<smoothing::Sample> = jobs
+                    .iter()
+                    .zip(&recs)
+                    .filter(|((j, _, _), _)| *j == k)
+                    .map(|((_, _, xi), r)| {
+                        Ok(smoothing::Sample {
+                            xi: *xi,
+                            loss: r.outcome.loss,
+                            grad: r
+                                .outcome
+                                .grad
+                                .context("a smoothed rollout without its gradient")?,
+                        })
+                    })
+                    .collect::<anyhow::Result<_>>()?;
+                let (g, _) = smoothing::alpha_order(&samples, sigma);
+                // The curriculum frees θ_t and θ_p after the same rollouts as grad's.
+                s.rmsprop.step(st, g, step * n);
+            }
+        }
+        Ok(())
+    }
+
+    pub(super) fn sac(&self, s: &Settings) -> anyhow::Result<()> {
+        let mut agents: Vec<Sac> = (0..s.seeds)
+            .map(|k| Sac::new(s.sac, theta_init(k), method_seed(Method::Sac, k)))
+            .collect::<candle_core::Result<_>>()?;
+        // The temperature and the reward's standardisation, per seed and episode.
+        let mut log = String::from("seed,episode,alpha,loss_mean,loss_std\n");
+        for episode in 0..s.epochs {
+            let actions: Vec<[f64; 5]> = agents
+                .iter_mut()
+                .map(|a| a.act())
+                .collect::<candle_core::Result<_>>()?;
+            let recs: Vec<Record> = actions
+                .par_iter()
+                .enumerate()
+                .map(|(k, th)| self.rollout(Method::Sac, k, episode, *th, false))
+                .collect::<anyhow::Result<_>>()?;
+            agents
+                .par_iter_mut()
+                .zip(recs.par_iter())
+                .try_for_each(|(a, r)| a.observe(r.theta, r.outcome.loss))?;
+            for (k, a) in agents.iter().enumerate() {
+                let (alpha, mean, std) = a.stats()?;
+                let _ = writeln!(log, "{k},{},{alpha},{mean},{std}", episode + 1);
+            }
+            write_atomic(&self.board.out.join("sac.csv"), log.as_bytes())?;
+        }
+        Ok(())
+    }
+
+    pub(super) fn random(&self, s: &Settings) -> anyhow::Result<()> {
+        let jobs: Vec<(usize, usize, [f64; 5])> = (0..s.seeds)
+            .flat_map(|k| {
+                let mut rng = SplitMix64(method_seed(Method::Random, k));
+                (0..s.epochs).map(move |i| {
+                    let th = if i == 0 {
+                        theta_init(k)
+                    } else {
+                        std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))
+                    };
+                    (k, i, th)
+                })
+            })
+            .collect();
+        jobs.par_iter()
+            .map(|&(k, i, th)| self.rollout(Method::Random, k, i, th, false).map(|_| ()))
+            .collect::<anyhow::Result<()>>()
+    }
+
+    pub(super) fn cmaes(&self, s: &Settings) -> anyhow::Result<()> {
+        let lambda = s.cmaes.population.max(2);
+        let generations = s.epochs.div_ceil(lambda);
+        let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+        // Per seed: the generation being evaluated and how many rollouts it may still run.
+        let gens: Vec<Mutex<(usize, usize)>> = (0..s.seeds).map(|_| Mutex::new((0, 0))).collect();
+        let objectives: Vec<_> = (0..s.seeds)
+            .map(|k| {
+                let (gens, failure) = (&gens, &failure);
+                move |x: &cmaes::DVector<f64>| -> f64 {
+                    let th: [f64; 5] = std::array::from_fn(|i| reflect(x[i]));
+                    let generation = {
+                        let mut g = gens[k].lock().expect("lock");
+                        if g.1 == 0 {
+                            // Past the budget in a last, partial generation: not run.
+                            return f64::MAX;
+                        }
+                        g.1 -= 1;
+                        g.0
+                    };
+                    match self.rollout(Method::Cmaes, k, generation, th, false) {
+                        Ok(r) => r.outcome.loss,
+                        Err(e) => {
+                            failure.lock().expect("lock").get_or_insert(e);
+                            f64::NAN
+                        }
+                    }
+                }
+            })
+            .collect();
+        let mut states: Vec<_> = objectives
+            .iter()
+            .enumerate()
+            .map(|(k, f)| {
+                cmaes::CMAESOptions::new(theta_init(k).to_vec(), s.cmaes.sigma0)
+                    .population_size(lambda)
+                    .seed(method_seed(Method::Cmaes, k))
+                    .build(f)
+                    .map_err(|e| anyhow::anyhow!("CMA-ES options: {e:?}"))
+            })
+            .collect::<anyhow::Result<_>>()?;
+        for generation in 0..generations {
+            let budget = (s.epochs - generation * lambda).min(lambda);
+            for g in &gens {
+                *g.lock().expect("lock") = (generation, budget);
+            }
+            // A termination criterion of the crate (e.g. a flat objective) ends nothing here:
+            // the method gets its whole budget, like the others.
+            states.par_iter_mut().for_each(|st| {
+                let _ = if budget == lambda {
+                    st.next_parallel()
+                } else {
+                    // A partial generation runs in the sampler's order, so which samples fit
+                    // the budget does not depend on the threads.
+                    st.next()
+                };
+            });
+            if let Some(e) = failure.lock().expect("lock").take() {
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+}
