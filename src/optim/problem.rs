@@ -115,7 +115,7 @@ impl Problem {
     pub fn simulation(&self, theta: [f64; 5], shared_pool: bool) -> anyhow::Result<Simulation> {
         // The skill's ranges map [−1, 1] to physical values; outside the box the mapping
         // extrapolates (a deeper scoop than the scene allows, a pour past its range) silently.
-        if let Some(k) = theta.iter().position(|t| !(t.abs() <= 1.0)) {
+        if let Some(k) = theta.iter().position(|t| t.is_nan() || t.abs() > 1.0) {
             anyhow::bail!(
                 "Θ = {theta:?} is outside [−1, 1]⁵ ({} = {}): the skill's ranges are defined on that box; clamp Θ to it",
                 crate::skills::PARAM_NAMES[k],
