@@ -1,6 +1,7 @@
 //! Seed B's smoothed gradient (Diff-LfD, its eq. 6): the gradient of the loss smoothed by
-//! Gaussian noise, `∇E_ξ[L(Θ + σξ)]`, estimated from `K` rollouts at `Θ + σξ_k`, each with its
-//! own packing of the powder (the fill's jitter seed), so the initial state is perturbed too.
+//! Gaussian noise, `∇E_ξ[L(Θ + σξ)]`, estimated from `K` rollouts at `Θ + σξ_k`. The
+//! estimates below take any such samples; `optimize --method smoothed` perturbs Θ only (seed B
+//! also perturbs the initial state, which is not built yet).
 //!
 //! From the same `K` samples, three estimates:
 //! - **first order**: the adjoint gradients, aggregated robustly. A single spilled grain gives an
