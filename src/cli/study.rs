@@ -26,6 +26,9 @@ pub struct Args {
     /// A seconds-long version of the study (tests and CI).
     #[arg(long)]
     quick: bool,
+    /// landscape: quasi-random rollouts to run (default 256; 16 with --quick).
+    #[arg(long)]
+    samples: Option<usize>,
     /// Keep the configurations already finished in OUT/results.json.
     #[arg(long)]
     resume: bool,
@@ -76,9 +79,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "growth" {
         return growth_cmd(a);
     }
+    if a.study == "landscape" {
+        return landscape_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time or growth",
+            "unknown study '{}': expected error-vs-time, growth or landscape",
             a.study
         );
     }
@@ -224,6 +230,52 @@ fn growth_cmd(a: Args) -> Result<()> {
             outputs.csv.display(),
             outputs.svg.display(),
             outputs.results.display()
+        );
+    }
+    Ok(())
+}
+
+/// `powderlab study landscape`: Sobol rollouts of a skill scene, best-of-k, main effects.
+fn landscape_cmd(a: Args) -> Result<()> {
+    use powderlab::study::landscape;
+    let scene = a
+        .scene
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("scenes/powder_transport.ron"));
+    let n = a.samples.unwrap_or(if a.quick { 16 } else { 256 });
+    if n < 2 {
+        bail!("study landscape: --samples {n}: expected at least 2");
+    }
+    let sc = powderlab::scene::Scene::load(&scene)?;
+    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
+    let unit = match problem.target {
+        powderlab::scene::TargetValue::Particles(_) => "particles",
+        powderlab::scene::TargetValue::Grams(_) => "g",
+    };
+    let threads = a.threads.unwrap_or(problem.scene.simulation.threads);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+        .context("starting the worker threads")?;
+    let thetas = landscape::sobol_thetas(n, 0);
+    let pb = super::bar(n as u64, a.json);
+    pb.set_position(landscape::load(&a.out)?.len().min(n) as u64);
+    let start = Instant::now();
+    let points = landscape::run(&problem, &thetas, &a.out, &|| pb.inc(1))?;
+    pb.finish_and_clear();
+    let md = landscape::write_report(&points, unit, &a.out)?;
+    if a.json {
+        println!(
+            "{}",
+            json!({ "rollouts": points.len(), "wall_s": start.elapsed().as_secs_f64(), "markdown": md })
+        );
+    } else {
+        print!("{md}");
+        eprintln!(
+            "{} rollouts in {:.0} s; wrote landscape.csv and landscape.md to {}",
+            points.len(),
+            start.elapsed().as_secs_f64(),
+            a.out.display()
         );
     }
     Ok(())

@@ -21,6 +21,7 @@
 
 pub mod analysis;
 pub mod growth;
+pub mod landscape;
 pub mod plot;
 
 pub use analysis::*;
