@@ -113,20 +113,21 @@ impl Problem {
     /// Builds the simulation of Θ from the scene built once: only the tool's controls are new.
     /// `shared_pool` runs it in the caller's rayon pool.
     pub fn simulation(&self, theta: [f64; 5], shared_pool: bool) -> anyhow::Result<Simulation> {
-        // The skill's ranges map [−1, 1] to physical values; outside the box the mapping
-        // extrapolates (a deeper scoop than the scene allows, a pour past its range) silently.
-        if let Some(k) = theta.iter().position(|t| t.is_nan() || t.abs() > 1.0) {
-            anyhow::bail!(
-                "Θ = {theta:?} is outside [−1, 1]⁵ ({} = {}): the skill's ranges are defined on that box; clamp Θ to it",
-                crate::skills::PARAM_NAMES[k],
-                theta[k]
-            );
-        }
         let scene = self.scene_at(theta);
         let tool = &scene.colliders[self.tool];
         let Some(ControlSpec::Skill(sk)) = &tool.control else {
             unreachable!("checked in Problem::new")
         };
+        // The skill's ranges map [−1, 1] to physical values; outside the box the mapping would
+        // extrapolate silently. The skill's own check refuses it, as for a scene file's Θ.
+        sk.validate().map_err(|e| {
+            anyhow::anyhow!(
+                "Θ = {theta:?}: {} = {} is not {}; clamp Θ to [−1, 1]⁵",
+                e.field,
+                e.value,
+                e.expected
+            )
+        })?;
         let controls = sk.controls(scene.simulation.dt, Scene::tool_bottom(tool)).0;
         let build = self.build.with_controls(&scene, self.tool, controls)?;
         Ok(build.simulation(

@@ -289,11 +289,6 @@ impl Prepared {
         Ok(p)
     }
 
-    /// Particles over all bodies.
-    pub fn particle_count(&self) -> usize {
-        self.bodies.iter().map(|b| b.x.len()).sum()
-    }
-
     /// The stability guard and the horizon, from the bodies and the colliders' controls.
     fn guard(&mut self, scene: &Scene) -> Result<(), SceneError> {
         let s = &scene.simulation;
