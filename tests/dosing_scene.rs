@@ -30,3 +30,23 @@ fn the_dosing_scene_is_the_default_scene_with_the_dosing_loss() {
     dosing.source = base.source.clone();
     assert_eq!(dosing, base);
 }
+
+#[test]
+fn the_precise_dosing_scene_asks_for_two_grams_with_the_dosing_loss_and_nothing_else() {
+    let base = load("powder_transport.ron");
+    let mut precise = load("precise_dosing.ron");
+    assert_eq!(
+        precise.loss,
+        Some(LossSpec::Dosing {
+            grams: 2.0,
+            width: None
+        })
+    );
+    let task = precise.task.as_mut().expect("a task");
+    assert_eq!(task.target_value, TargetValue::Grams(2.0));
+    task.target_value = TargetValue::Grams(5.0);
+    precise.loss = None;
+    precise.path = base.path.clone();
+    precise.source = base.source.clone();
+    assert_eq!(precise, base);
+}

@@ -10,8 +10,8 @@ use std::path::PathBuf;
 pub struct Args {
     /// The scene whose tool has a skill control.
     scene: PathBuf,
-    /// grad, cmaes, sac, random, smoothed, paper (the first four, the default) or all (comma
-    /// separated).
+    /// grad, cmaes, sac, random, smoothed, hybrid, paper (the first four, the default) or all
+    /// (comma separated).
     #[arg(long, value_delimiter = ',', default_value = "paper")]
     method: Vec<String>,
     /// Rollouts per seed and method (the gradient method's epochs).
@@ -61,6 +61,10 @@ pub struct Args {
     /// The smoothed method's noise on Θ (standard deviation).
     #[arg(long, default_value_t = 0.05)]
     smooth_sigma: f64,
+    /// Give every method the compute of --epochs forward rollouts: grad and smoothed run
+    /// --epochs/(1 + backward cost) gradient rollouts. The hybrid always counts this way.
+    #[arg(long)]
+    equal_compute: bool,
     /// Memory budget of a backward pass's tape in MB.
     #[arg(long, default_value_t = 1024)]
     budget_mb: usize,
@@ -89,6 +93,7 @@ pub fn run(args: Args) -> Result<()> {
         sac_updates,
         smooth_samples,
         smooth_sigma,
+        equal_compute,
         budget_mb,
         json: json_out,
     } = args;
@@ -105,7 +110,7 @@ pub fn run(args: Args) -> Result<()> {
                 }
             }
             None => {
-                bail!("--method {m}: expected grad, cmaes, sac, random, smoothed, paper or all")
+                bail!("--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, paper or all")
             }
         }
     }
@@ -165,6 +170,8 @@ pub fn run(args: Args) -> Result<()> {
             samples: smooth_samples,
             sigma: smooth_sigma,
         },
+        hybrid: optim::HybridConfig::default(),
+        equal_compute,
         tape_budget: budget_mb << 20,
     };
     if !json_out {

@@ -29,6 +29,22 @@ pub struct Args {
     /// landscape: quasi-random rollouts to run (default 256; 16 with --quick).
     #[arg(long)]
     samples: Option<usize>,
+    /// optimizers: the skill scenes to benchmark (comma separated; default the transport task
+    /// and the precise-dosing task).
+    #[arg(long, value_delimiter = ',')]
+    tasks: Vec<PathBuf>,
+    /// optimizers: paired seeds per task.
+    #[arg(long, default_value_t = 10)]
+    seeds: usize,
+    /// optimizers: compute per seed and method, in forward rollouts.
+    #[arg(long, default_value_t = 20)]
+    budget: usize,
+    /// optimizers: the methods (comma separated, or all).
+    #[arg(long, value_delimiter = ',', default_value = "all")]
+    method: Vec<String>,
+    /// optimizers: where optimisation.md, .svg and .csv go.
+    #[arg(long, default_value = "docs/results")]
+    results: PathBuf,
     /// Keep the configurations already finished in OUT/results.json.
     #[arg(long)]
     resume: bool,
@@ -82,9 +98,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "landscape" {
         return landscape_cmd(a);
     }
+    if a.study == "optimizers" {
+        return optimizers_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth or landscape",
+            "unknown study '{}': expected error-vs-time, growth, landscape or optimizers",
             a.study
         );
     }
@@ -276,6 +295,77 @@ fn landscape_cmd(a: Args) -> Result<()> {
             points.len(),
             start.elapsed().as_secs_f64(),
             a.out.display()
+        );
+    }
+    Ok(())
+}
+
+/// `powderlab study optimizers`: every method on paired seeds at equal compute.
+fn optimizers_cmd(a: Args) -> Result<()> {
+    use powderlab::optim::Method;
+    let tasks = if a.tasks.is_empty() {
+        vec![
+            PathBuf::from("scenes/powder_transport.ron"),
+            PathBuf::from("scenes/precise_dosing.ron"),
+        ]
+    } else {
+        a.tasks.clone()
+    };
+    let mut methods: Vec<Method> = Vec::new();
+    for m in &a.method {
+        let Some(ms) = Method::parse_list(m) else {
+            bail!(
+                "--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, paper or all"
+            );
+        };
+        for m in ms {
+            if !methods.contains(&m) {
+                methods.push(m);
+            }
+        }
+    }
+    let threads = a.threads.unwrap_or(0);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build_global()
+        .context("starting the worker threads")?;
+    let command = format!(
+        "powderlab study optimizers --tasks {} --seeds {} --budget {} --method {}",
+        tasks
+            .iter()
+            .map(|t| t.display().to_string())
+            .collect::<Vec<_>>()
+            .join(","),
+        a.seeds,
+        a.budget,
+        methods
+            .iter()
+            .map(|m| m.name())
+            .collect::<Vec<_>>()
+            .join(",")
+    );
+    let start = Instant::now();
+    let md = study::optimizers::run(&study::optimizers::StudyOptions {
+        tasks,
+        seeds: a.seeds,
+        budget: a.budget,
+        methods,
+        out: a.out.join("optimizers"),
+        results: a.results.clone(),
+        command,
+        quiet: a.json,
+    })?;
+    if a.json {
+        println!(
+            "{}",
+            json!({ "wall_s": start.elapsed().as_secs_f64(), "markdown": md })
+        );
+    } else {
+        print!("{md}");
+        eprintln!(
+            "{:.0} s; wrote optimisation.md, optimisation.svg and optimisation.csv to {}",
+            start.elapsed().as_secs_f64(),
+            a.results.display()
         );
     }
     Ok(())

@@ -12,6 +12,8 @@
 //!   only; the powder's packing is the scene's), and RMSprop with the paper's settings and
 //!   curriculum takes the α-order estimate. With the same rollouts per seed it takes `K` times
 //!   fewer steps; the curriculum frees θ_t and θ_p after the same number of rollouts as grad.
+//! - **hybrid** (not the paper's; by name only): Sobol points first, then trust-region steps
+//!   along the adjoint gradient from the best of them ([`hybrid`]).
 //!
 //! **Budget.** Every method gets `epochs` rollouts per seed; the x-axis of the results is the
 //! number of rollouts so far ("epoch"). What a method has found after `k` rollouts is its
@@ -35,6 +37,7 @@
 //! ([`journal`]).
 
 pub mod cma;
+pub mod hybrid;
 pub mod journal;
 pub mod plot;
 pub mod problem;
@@ -47,6 +50,7 @@ pub mod smoothing;
 use crate::util::{write_atomic, SplitMix64};
 use anyhow::{bail, Context};
 use cma::CmaConfig;
+pub use hybrid::HybridConfig;
 use indicatif::{ProgressBar, ProgressStyle};
 use journal::{Journal, Record};
 use problem::Problem;
@@ -68,16 +72,18 @@ pub enum Method {
     Sac,
     Random,
     Smoothed,
+    Hybrid,
 }
 
 impl Method {
     /// Every method.
-    pub const ALL: [Method; 5] = [
+    pub const ALL: [Method; 6] = [
         Method::Grad,
         Method::Cmaes,
         Method::Sac,
         Method::Random,
         Method::Smoothed,
+        Method::Hybrid,
     ];
     /// The paper's comparison: `optimize`'s default.
     pub const PAPER: [Method; 4] = [Method::Grad, Method::Cmaes, Method::Sac, Method::Random];
@@ -89,7 +95,13 @@ impl Method {
             Method::Sac => "sac",
             Method::Random => "random",
             Method::Smoothed => "smoothed",
+            Method::Hybrid => "hybrid",
         }
+    }
+
+    /// Whether every rollout of the method runs the backward pass too.
+    pub fn all_gradient(self) -> bool {
+        matches!(self, Method::Grad | Method::Smoothed)
     }
 
     /// Parses a method name, `paper` (the paper's four) or `all`.
@@ -119,8 +131,35 @@ pub struct Settings {
     /// The smoothed method's samples and noise.
     #[serde(default)]
     pub smoothing: SmoothingConfig,
+    /// The hybrid's global fraction and trust radius.
+    #[serde(default)]
+    pub hybrid: HybridConfig,
+    /// Give every method the compute of `epochs` forward rollouts instead of `epochs`
+    /// rollouts: grad and smoothed then run `epochs/(1 + BACKWARD_COST)` gradient rollouts
+    /// (rounded up; smoothed to whole steps of its samples). The hybrid always counts its
+    /// budget this way.
+    #[serde(default)]
+    pub equal_compute: bool,
     /// Memory budget of a backward pass's tape (bytes).
     pub tape_budget: usize,
+}
+
+impl Settings {
+    /// Rollouts per seed that `method` may run (the hybrid's are its budget in forward
+    /// rollouts; it runs fewer).
+    pub fn epochs_for(&self, method: Method) -> usize {
+        if !(self.equal_compute && method.all_gradient()) {
+            return self.epochs;
+        }
+        let n = (self.epochs as f64 / (1.0 + report::BACKWARD_COST)).ceil() as usize;
+        match method {
+            Method::Smoothed => {
+                let k = self.smoothing.samples.max(2);
+                n.div_ceil(k) * k
+            }
+            _ => n.max(1),
+        }
+    }
 }
 
 /// The smoothed method's settings.
@@ -167,6 +206,16 @@ pub fn theta_init(k: usize) -> [f64; 5] {
     std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))
 }
 
+/// The first `n` points of the Owen-scrambled Sobol sequence over [−1, 1]⁵ (`sobol_burley`),
+/// scrambled by `seed`.
+pub fn sobol_thetas(n: usize, seed: u32) -> Vec<[f64; 5]> {
+    (0..n as u32)
+        .map(|i| {
+            std::array::from_fn(|d| 2.0 * sobol_burley::sample(i, d as u32, seed) as f64 - 1.0)
+        })
+        .collect()
+}
+
 /// Seed of a method's own generator for seed `k`.
 pub(crate) fn method_seed(m: Method, k: usize) -> u64 {
     ((m as u64 + 1) << 32) + k as u64
@@ -176,6 +225,9 @@ pub(crate) fn method_seed(m: Method, k: usize) -> u64 {
 #[derive(Clone, Debug, Serialize)]
 pub struct RunSummary {
     pub summary: serde_json::Value,
+    /// Every rollout, per method and seed, in canonical order.
+    #[serde(skip)]
+    pub records: BTreeMap<(Method, usize), Vec<Record>>,
     pub replayed: usize,
     pub ran: usize,
 }
@@ -220,7 +272,8 @@ pub fn run(problem: &Problem, opts: &Options) -> anyhow::Result<RunSummary> {
     let bar = if opts.quiet {
         ProgressBar::hidden()
     } else {
-        let pb = ProgressBar::new((s.methods.len() * s.epochs * s.seeds) as u64);
+        let rollouts: usize = s.methods.iter().map(|&m| s.epochs_for(m)).sum();
+        let pb = ProgressBar::new((rollouts * s.seeds) as u64);
         pb.set_style(
             ProgressStyle::with_template(
                 "{elapsed_precise} [{bar:30}] {pos}/{len} rollouts  {msg}",
@@ -253,6 +306,7 @@ pub fn run(problem: &Problem, opts: &Options) -> anyhow::Result<RunSummary> {
             Method::Sac => runner.sac(s)?,
             Method::Random => runner.random(s)?,
             Method::Smoothed => runner.smoothed(s)?,
+            Method::Hybrid => runner.hybrid(s)?,
         }
         elapsed.insert(m, runner.carried + runner.start.elapsed().as_secs_f64());
     }
@@ -274,6 +328,7 @@ pub fn run(problem: &Problem, opts: &Options) -> anyhow::Result<RunSummary> {
     record_best(problem, &records, &opts.out.join("best.rrd"))?;
     Ok(RunSummary {
         summary,
+        records,
         replayed,
         ran,
     })
@@ -331,4 +386,39 @@ fn record_best(
     _: &Path,
 ) -> anyhow::Result<()> {
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn settings(epochs: usize, equal_compute: bool) -> Settings {
+        Settings {
+            scene_hash: String::new(),
+            methods: Method::ALL.to_vec(),
+            epochs,
+            seeds: 1,
+            rmsprop: Default::default(),
+            cmaes: Default::default(),
+            sac: Default::default(),
+            smoothing: Default::default(),
+            hybrid: Default::default(),
+            equal_compute,
+            tape_budget: 0,
+        }
+    }
+
+    #[test]
+    fn equal_compute_gives_the_gradient_methods_a_third_of_the_rollouts() {
+        let s = settings(20, true);
+        // 20 / 3.4 = 5.9: six gradient rollouts; smoothed rounds up to whole steps of 4.
+        assert_eq!(s.epochs_for(Method::Grad), 6);
+        assert_eq!(s.epochs_for(Method::Smoothed), 8);
+        for m in [Method::Random, Method::Cmaes, Method::Sac, Method::Hybrid] {
+            assert_eq!(s.epochs_for(m), 20, "{m:?}");
+        }
+        // Without it every method gets the same rollouts (the paper's framing).
+        let p = settings(20, false);
+        assert!(Method::ALL.iter().all(|&m| p.epochs_for(m) == 20));
+    }
 }

@@ -9,13 +9,15 @@ use plotters::prelude::*;
 use std::collections::BTreeMap;
 use std::path::Path;
 
-fn colour(m: Method) -> RGBColor {
+/// The colour of a method in every figure.
+pub fn colour(m: Method) -> RGBColor {
     match m {
         Method::Grad => RGBColor(31, 119, 180),
         Method::Cmaes => RGBColor(44, 160, 44),
         Method::Sac => RGBColor(214, 39, 40),
         Method::Random => RGBColor(127, 127, 127),
         Method::Smoothed => RGBColor(148, 103, 189),
+        Method::Hybrid => RGBColor(140, 86, 75),
     }
 }
 

@@ -3,11 +3,12 @@
 //! progress bar current.
 
 use super::cma::reflect;
+use super::hybrid::TrustRegion;
 use super::journal::{Journal, Record};
 use super::problem::Problem;
 use super::rmsprop::RmsState;
 use super::sac::Sac;
-use super::{method_seed, report, smoothing, theta_init, Method, Settings};
+use super::{method_seed, report, smoothing, sobol_thetas, theta_init, Method, Settings};
 use crate::util::{write_atomic, SplitMix64};
 use anyhow::Context;
 use indicatif::ProgressBar;
@@ -101,7 +102,7 @@ impl Runner<'_> {
             })
             .collect();
         let mut norms: Vec<Vec<f64>> = vec![Vec::new(); s.seeds];
-        for epoch in 1..=s.epochs {
+        for epoch in 1..=s.epochs_for(Method::Grad) {
             let recs: Vec<Record> = states
                 .par_iter()
                 .enumerate()
@@ -130,7 +131,7 @@ impl Runner<'_> {
         let mut rngs: Vec<SplitMix64> = (0..s.seeds)
             .map(|k| SplitMix64(method_seed(Method::Smoothed, k)))
             .collect();
-        for step in 1..=s.epochs / n {
+        for step in 1..=s.epochs_for(Method::Smoothed) / n {
             // Θ + σξ for every seed and sample, clamped to the box; ξ is recomputed from the
             // clamped point so the zeroth-order estimate uses the Θ that ran.
             let jobs: Vec<(usize, [f64; 5], [f64; 5])> = states
@@ -287,5 +288,97 @@ impl Runner<'_> {
             }
         }
         Ok(())
+    }
+
+    /// The hybrid ([`super::hybrid`]): Sobol points, then a trust region along the adjoint
+    /// gradient from the best of them, within the compute of `epochs` forward rollouts.
+    pub(super) fn hybrid(&self, s: &Settings) -> anyhow::Result<()> {
+        let budget = s.epochs as f64;
+        let global = ((s.hybrid.global * budget).floor() as usize).clamp(1, s.epochs);
+        let points = |k: usize| -> Vec<[f64; 5]> {
+            let mut v = vec![theta_init(k)];
+            v.extend(sobol_thetas(
+                s.epochs - 1,
+                method_seed(Method::Hybrid, k) as u32,
+            ));
+            v
+        };
+        let jobs: Vec<(usize, usize, [f64; 5])> = (0..s.seeds)
+            .flat_map(|k| {
+                points(k)
+                    .into_iter()
+                    .take(global)
+                    .enumerate()
+                    .map(move |(i, t)| (k, i, t))
+            })
+            .collect();
+        let found: Vec<Record> = jobs
+            .par_iter()
+            .map(|&(k, i, t)| self.rollout(Method::Hybrid, k, i, t, false))
+            .collect::<anyhow::Result<_>>()?;
+        let grad_cost = 1.0 + report::BACKWARD_COST;
+        (0..s.seeds).into_par_iter().try_for_each(|k| {
+            // The global phase's best (the first of equal losses, in draw order).
+            let mut inc = found
+                .iter()
+                .filter(|r| r.seed == k)
+                .fold(None::<&Record>, |b, r| match b {
+                    Some(b) if b.outcome.loss <= r.outcome.loss => Some(b),
+                    _ => Some(r),
+                })
+                .map(|r| (r.theta, r.outcome.loss))
+                .context("the hybrid's global phase ran nothing")?;
+            let mut spent = global as f64;
+            let mut batch = global;
+            let mut tr = TrustRegion {
+                radius: s.hybrid.radius,
+            };
+            let mut grad: Option<[f64; 5]> = None;
+            // Sobol points not used by the global phase: where the gradient gives no direction
+            // (all zero), the rest of the budget continues the search instead of idling.
+            let mut spare = points(k).into_iter().skip(global);
+            loop {
+                let trial = match grad {
+                    None => {
+                        if spent + grad_cost > budget + 1e-9 {
+                            break;
+                        }
+                        let r = self.rollout(Method::Hybrid, k, batch, inc.0, true)?;
+                        batch += 1;
+                        spent += grad_cost;
+                        grad = Some(
+                            r.outcome
+                                .grad
+                                .context("a hybrid gradient rollout without its gradient")?,
+                        );
+                        continue;
+                    }
+                    Some(g) => tr.propose(inc.0, g),
+                };
+                if spent + 1.0 > budget + 1e-9 {
+                    break;
+                }
+                let (trial, searched) = match trial {
+                    Some(t) => (t, false),
+                    None => match spare.next() {
+                        Some(t) => (t, true),
+                        None => break,
+                    },
+                };
+                let r = self.rollout(Method::Hybrid, k, batch, trial, false)?;
+                batch += 1;
+                spent += 1.0;
+                let better = if searched {
+                    r.outcome.loss < inc.1
+                } else {
+                    tr.judge(inc.1, r.outcome.loss, s.hybrid.radius)
+                };
+                if better {
+                    inc = (trial, r.outcome.loss);
+                    grad = None;
+                }
+            }
+            Ok(())
+        })
     }
 }

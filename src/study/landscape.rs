@@ -12,6 +12,7 @@
 //! where it stopped.
 
 use crate::optim::problem::{Outcome, Problem};
+pub use crate::optim::sobol_thetas;
 use crate::util::{write_atomic, SplitMix64};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
@@ -29,15 +30,6 @@ pub struct Point {
     pub loss: f64,
     pub indicator: f64,
     pub transported: f64,
-}
-
-/// The first `n` points of the scrambled Sobol sequence over [−1, 1]⁵.
-pub fn sobol_thetas(n: usize, seed: u32) -> Vec<[f64; 5]> {
-    (0..n as u32)
-        .map(|i| {
-            std::array::from_fn(|d| 2.0 * sobol_burley::sample(i, d as u32, seed) as f64 - 1.0)
-        })
-        .collect()
 }
 
 /// Random search's best-of-`k` by bootstrap: the mean, 10th and 90th percentile of the dose

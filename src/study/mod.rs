@@ -22,6 +22,7 @@
 pub mod analysis;
 pub mod growth;
 pub mod landscape;
+pub mod optimizers;
 pub mod plot;
 
 pub use analysis::*;

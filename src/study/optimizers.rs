@@ -1,0 +1,606 @@
+//! `powderlab study optimizers`: every optimisation method on paired seeds, at equal compute
+//! and at equal rollouts, with a Wilcoxon signed-rank test of each method against each
+//! forward-only baseline.
+//!
+//! Each task (a skill scene) is one `optimize` run ([`crate::optim::run`]) with
+//! `equal_compute` set: every method gets the compute of `budget` forward rollouts, the
+//! gradient methods `budget/(1 + BACKWARD_COST)` gradient rollouts, the hybrid its budget in
+//! forward rollouts. Seed `k` starts every method from the same Θ_init. The run directory keeps
+//! the journal, so a killed study resumes where it stopped.
+//!
+//! **Equal compute.** Each seed's budget is the fewest simulated particle-substeps any method
+//! spent on it (the horizon, and hence a rollout's cost, depends on Θ); each method is scored by
+//! its best rollout so far (lowest loss) within that budget. **Equal rollouts** reads every
+//! method after the fewest rollouts any method ran (the paper's framing, which favours the
+//! gradient methods: their rollouts cost 3.4 times as much).
+
+use crate::optim::journal::Record;
+use crate::optim::report::{curve, mean_std, point_within, Point};
+use crate::optim::rmsprop::median;
+use crate::optim::Method;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// The methods that use no gradient: the baselines a gradient-informed method must beat.
+pub const BASELINES: [Method; 3] = [Method::Random, Method::Cmaes, Method::Sac];
+
+/// The significance level of the verdicts.
+pub const ALPHA: f64 = 0.05;
+
+/// One-sided exact Wilcoxon signed-rank test of paired samples: the p-value of "a is smaller
+/// than b". Zero differences are dropped (Wilcoxon's rule), tied magnitudes share their mean
+/// rank, and the null distribution of the rank sum is enumerated exactly over the signs. `None`
+/// when no difference is non-zero.
+pub fn wilcoxon_less(a: &[f64], b: &[f64]) -> Option<f64> {
+    let d: Vec<f64> = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| x - y)
+        .filter(|d| *d != 0.0)
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    let mut order: Vec<usize> = (0..d.len()).collect();
+    order.sort_by(|&i, &j| d[i].abs().total_cmp(&d[j].abs()));
+    // Doubled ranks (integers even where ties share a half rank).
+    let mut rank2 = vec![0usize; d.len()];
+    let mut i = 0;
+    while i < order.len() {
+        let mut j = i;
+        while j + 1 < order.len() && d[order[j + 1]].abs() == d[order[i]].abs() {
+            j += 1;
+        }
+        // Ranks i+1 ..= j+1 share their mean (i + j + 2)/2, doubled: i + j + 2.
+        for &o in &order[i..=j] {
+            rank2[o] = i + j + 2;
+        }
+        i = j + 1;
+    }
+    // Observed statistic: the sum of the (doubled) ranks of the positive differences; small
+    // when a < b.
+    let w: usize = d
+        .iter()
+        .zip(&rank2)
+        .filter(|(d, _)| **d > 0.0)
+        .map(|(_, r)| r)
+        .sum();
+    // counts[s] = number of sign assignments whose positive ranks sum to s.
+    let total: usize = rank2.iter().sum();
+    let mut counts = vec![0f64; total + 1];
+    counts[0] = 1.0;
+    for &r in &rank2 {
+        for s in (r..=total).rev() {
+            counts[s] += counts[s - r];
+        }
+    }
+    let all = 2f64.powi(d.len() as i32);
+    Some(counts[..=w].iter().sum::<f64>() / all)
+}
+
+/// One method's score on one task.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub method: Method,
+    /// Per seed (in seed order): the dose error of the best rollout within the seed's
+    /// equal-compute budget.
+    pub dose_equal_compute: Vec<f64>,
+    /// Per seed: the dose error after the equal-rollouts count.
+    pub dose_equal_rollouts: Vec<f64>,
+    /// Mean rollouts within the equal-compute budget.
+    pub rollouts_in_budget: f64,
+    /// Mean particle-substeps spent within the budget.
+    pub particle_substeps: f64,
+    /// Mean seconds of rollout time within the budget, per seed (rollouts run side by side,
+    /// so this is the time of one core's share of the work).
+    pub rollout_s: f64,
+    /// One-sided Wilcoxon p-value of "this method's dose error at equal compute is smaller
+    /// than the baseline's", per baseline.
+    pub p_vs: BTreeMap<String, Option<f64>>,
+}
+
+/// A task's result.
+#[derive(Clone, Debug, Serialize)]
+pub struct TaskResult {
+    pub scene: String,
+    pub unit: String,
+    pub target: f64,
+    pub seeds: usize,
+    /// The rollouts at which equal rollouts is read.
+    pub equal_rollouts: usize,
+    /// Mean equal-compute budget per seed, in particle-substeps.
+    pub budget_particle_substeps: f64,
+    pub rows: Vec<Row>,
+    /// Each method's whole run time (all seeds, both cores), seconds.
+    pub wall_s: BTreeMap<String, f64>,
+}
+
+impl TaskResult {
+    /// The gradient-informed methods that beat every baseline at equal compute at [`ALPHA`].
+    pub fn winners(&self) -> Vec<Method> {
+        self.rows
+            .iter()
+            .filter(|r| !BASELINES.contains(&r.method))
+            .filter(|r| {
+                self.rows
+                    .iter()
+                    .filter(|b| BASELINES.contains(&b.method))
+                    .all(|b| r.p_vs.get(b.method.name()).copied().flatten() < Some(ALPHA))
+            })
+            .map(|r| r.method)
+            .collect()
+    }
+
+    /// The rows ranked by mean dose error at equal compute.
+    pub fn ranked(&self) -> Vec<&Row> {
+        let mut v: Vec<&Row> = self.rows.iter().collect();
+        v.sort_by(|a, b| {
+            mean_std(&a.dose_equal_compute)
+                .0
+                .total_cmp(&mean_std(&b.dose_equal_compute).0)
+        });
+        v
+    }
+}
+
+/// Scores a finished run's records.
+pub fn analyse(
+    scene: &str,
+    unit: &str,
+    target: f64,
+    methods: &[Method],
+    records: &BTreeMap<(Method, usize), Vec<Record>>,
+    wall_s: BTreeMap<String, f64>,
+) -> TaskResult {
+    let budgets = crate::optim::report::equal_compute_budgets(methods, records);
+    let seeds: Vec<usize> = budgets.keys().copied().collect();
+    let equal_rollouts = records
+        .iter()
+        .filter(|((m, _), _)| methods.contains(m))
+        .map(|(_, l)| l.len())
+        .min()
+        .unwrap_or(0);
+    let mut rows: Vec<Row> = methods
+        .iter()
+        .map(|&m| {
+            let mut at_budget: Vec<Point> = Vec::new();
+            let mut at_rollouts = Vec::new();
+            for k in &seeds {
+                let Some(l) = records.get(&(m, *k)) else {
+                    continue;
+                };
+                let c = curve(l);
+                if let Some(p) = point_within(&c, budgets[k]) {
+                    at_budget.push(p);
+                }
+                if let Some(p) = c.get(equal_rollouts.saturating_sub(1)) {
+                    at_rollouts.push(p.best_indicator.abs());
+                }
+            }
+            Row {
+                method: m,
+                dose_equal_compute: at_budget.iter().map(|p| p.best_indicator.abs()).collect(),
+                dose_equal_rollouts: at_rollouts,
+                rollouts_in_budget: mean_std(
+                    &at_budget.iter().map(|p| p.epoch as f64).collect::<Vec<_>>(),
+                )
+                .0,
+                particle_substeps: mean_std(
+                    &at_budget
+                        .iter()
+                        .map(|p| p.particle_substeps)
+                        .collect::<Vec<_>>(),
+                )
+                .0,
+                rollout_s: mean_std(&at_budget.iter().map(|p| p.wall_s).collect::<Vec<_>>()).0,
+                p_vs: BTreeMap::new(),
+            }
+        })
+        .collect();
+    let baseline_scores: Vec<(Method, Vec<f64>)> = rows
+        .iter()
+        .filter(|r| BASELINES.contains(&r.method))
+        .map(|r| (r.method, r.dose_equal_compute.clone()))
+        .collect();
+    for r in &mut rows {
+        for (b, scores) in &baseline_scores {
+            if *b != r.method && scores.len() == r.dose_equal_compute.len() {
+                r.p_vs.insert(
+                    b.name().to_string(),
+                    wilcoxon_less(&r.dose_equal_compute, scores),
+                );
+            }
+        }
+    }
+    TaskResult {
+        scene: scene.to_string(),
+        unit: unit.to_string(),
+        target,
+        seeds: seeds.len(),
+        equal_rollouts,
+        budget_particle_substeps: mean_std(&budgets.values().copied().collect::<Vec<_>>()).0,
+        rows,
+        wall_s,
+    }
+}
+
+/// Per method: the median over seeds of the best-so-far dose error at each of `n` points of
+/// the x-axis, by particle-substeps (`by_compute`) or by rollouts.
+pub fn median_curves(
+    records: &BTreeMap<(Method, usize), Vec<Record>>,
+    by_compute: bool,
+    n: usize,
+) -> BTreeMap<Method, Vec<(f64, f64)>> {
+    let mut per: BTreeMap<Method, Vec<Vec<Point>>> = BTreeMap::new();
+    for ((m, _), l) in records {
+        per.entry(*m).or_default().push(curve(l));
+    }
+    let x_max = |c: &Vec<Point>| {
+        c.last().map_or(0.0, |p| {
+            if by_compute {
+                p.particle_substeps
+            } else {
+                p.epoch as f64
+            }
+        })
+    };
+    per.into_iter()
+        .map(|(m, curves)| {
+            // Up to where every seed has a point.
+            let end = curves.iter().map(x_max).fold(f64::INFINITY, f64::min);
+            let pts = (1..=n)
+                .filter_map(|i| {
+                    let x = end * i as f64 / n as f64;
+                    let v: Vec<f64> = curves
+                        .iter()
+                        .filter_map(|c| {
+                            if by_compute {
+                                c.iter()
+                                    .take_while(|p| p.particle_substeps <= x * (1.0 + 1e-12))
+                                    .last()
+                            } else {
+                                c.iter().take_while(|p| p.epoch as f64 <= x + 1e-9).last()
+                            }
+                            .map(|p| p.best_indicator.abs())
+                        })
+                        .collect();
+                    (v.len() == curves.len()).then(|| (x, median(&v)))
+                })
+                .collect();
+            (m, pts)
+        })
+        .collect()
+}
+
+/// The markdown table of one task.
+pub fn table(t: &TaskResult) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| method | dose error at equal compute ({u}), mean ± std | median | p < random | p < cmaes | p < sac | rollouts in budget | G particle-substeps | rollout s per seed | dose error at {k} rollouts, mean ± std | method wall s |",
+        u = t.unit,
+        k = t.equal_rollouts
+    );
+    s.push_str("|---|---|---|---|---|---|---|---|---|---|---|\n");
+    for r in t.ranked() {
+        let (m, sd) = mean_std(&r.dose_equal_compute);
+        let (mr, sr) = mean_std(&r.dose_equal_rollouts);
+        let p = |b: &str| match r.p_vs.get(b) {
+            Some(Some(p)) => format!("{p:.3}"),
+            Some(None) => "tie".into(),
+            None => "–".into(),
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {m:.3} ± {sd:.3} | {:.3} | {} | {} | {} | {:.1} | {:.2} | {:.0} | {mr:.3} ± {sr:.3} | {:.0} |",
+            r.method.name(),
+            median(&r.dose_equal_compute),
+            p("random"),
+            p("cmaes"),
+            p("sac"),
+            r.rollouts_in_budget,
+            r.particle_substeps / 1e9,
+            r.rollout_s,
+            t.wall_s.get(r.method.name()).copied().unwrap_or(f64::NAN),
+        );
+    }
+    s
+}
+
+/// A task's curves, for the figure.
+pub struct Curves {
+    pub title: String,
+    pub unit: String,
+    pub by_compute: BTreeMap<Method, Vec<(f64, f64)>>,
+    pub by_rollouts: BTreeMap<Method, Vec<(f64, f64)>>,
+}
+
+/// `optimisation.svg`: per task, the median best-so-far dose error against particle-substeps
+/// (left) and against rollouts (right), log scale.
+pub fn figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::Result<()> {
+    use crate::optim::plot::colour;
+    use plotters::coord::combinators::IntoLogRange;
+    use plotters::prelude::*;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (1100, 380 * tasks.len().max(1) as u32))
+            .into_drawing_area();
+        root.fill(&WHITE)?;
+        let rows = root.split_evenly((tasks.len().max(1), 2));
+        for (i, t) in tasks.iter().enumerate() {
+            for (j, (curves, xdesc)) in [
+                (&t.by_compute, "particle-substeps per seed (G)"),
+                (&t.by_rollouts, "rollouts per seed"),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                let area = &rows[2 * i + j];
+                let xs = if j == 0 { 1e-9 } else { 1.0 };
+                let x_hi = curves
+                    .values()
+                    .flatten()
+                    .map(|p| p.0 * xs)
+                    .fold(1.0, f64::max);
+                let ys: Vec<f64> = curves
+                    .values()
+                    .flatten()
+                    .map(|p| p.1)
+                    .filter(|y| *y > 0.0)
+                    .collect();
+                let y_lo = ys.iter().copied().fold(f64::INFINITY, f64::min).min(0.01) * 0.8;
+                let y_hi = ys.iter().copied().fold(0.0, f64::max).max(0.1) * 1.25;
+                let mut chart = ChartBuilder::on(area)
+                    .caption(
+                        format!("{}: median best dose error ({})", t.title, t.unit),
+                        ("sans-serif", 14),
+                    )
+                    .margin(10)
+                    .x_label_area_size(36)
+                    .y_label_area_size(52)
+                    .build_cartesian_2d(0f64..x_hi, (y_lo..y_hi).log_scale())?;
+                chart
+                    .configure_mesh()
+                    .x_desc(xdesc)
+                    .y_desc(format!("dose error ({})", t.unit))
+                    .draw()?;
+                for (m, v) in curves {
+                    let c = colour(*m);
+                    chart
+                        .draw_series(LineSeries::new(
+                            v.iter().map(|&(x, y)| (x * xs, y.max(y_lo))),
+                            c.stroke_width(2),
+                        ))?
+                        .label(m.name())
+                        .legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                        });
+                }
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .position(SeriesLabelPosition::UpperRight)
+                    .draw()?;
+            }
+        }
+        root.present()?;
+    }
+    crate::util::write_atomic(path, svg.as_bytes())?;
+    Ok(())
+}
+
+/// What the study runs.
+#[derive(Clone, Debug)]
+pub struct StudyOptions {
+    /// The skill scenes, each a task.
+    pub tasks: Vec<std::path::PathBuf>,
+    pub seeds: usize,
+    /// Compute per seed and method, in forward rollouts.
+    pub budget: usize,
+    pub methods: Vec<Method>,
+    /// Run directories (journals), one per task.
+    pub out: std::path::PathBuf,
+    /// Where `optimisation.md`, `.svg` and `.csv` go.
+    pub results: std::path::PathBuf,
+    /// The command line that regenerates the page, written at its top.
+    pub command: String,
+    pub quiet: bool,
+}
+
+/// The processor's name and the worker threads, for the page's header.
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .and_then(|l| l.split(':').nth(1))
+                .map(|s| s.trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown processor".into());
+    format!("{cpu}, {} worker threads", rayon::current_num_threads())
+}
+
+/// Runs every task (resuming each from its journal) and writes the page; returns its text.
+pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
+    use crate::optim::{self, problem::Problem};
+    use anyhow::Context;
+    use std::fmt::Write;
+    if o.seeds == 0 || o.budget == 0 {
+        anyhow::bail!("study optimizers: --seeds and --budget must be at least 1");
+    }
+    let mut results = Vec::new();
+    let mut curves = Vec::new();
+    let mut csv =
+        String::from("task,method,seed,dose_error_equal_compute,dose_error_equal_rollouts\n");
+    for scene_path in &o.tasks {
+        let scene = crate::scene::Scene::load(scene_path)?;
+        let problem = Problem::new(scene.clone(), TAPE_BUDGET)?;
+        let stem = scene_path
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_else(|| "task".into());
+        let out = o.out.join(&stem);
+        let settings = optim::Settings {
+            scene_hash: optim::fnv1a(&scene.source),
+            methods: o.methods.clone(),
+            epochs: o.budget,
+            seeds: o.seeds,
+            rmsprop: Default::default(),
+            cmaes: Default::default(),
+            sac: Default::default(),
+            smoothing: Default::default(),
+            hybrid: Default::default(),
+            equal_compute: true,
+            tape_budget: TAPE_BUDGET,
+        };
+        let resume = out.join("settings.json").exists();
+        if !o.quiet {
+            eprintln!(
+                "{}: {} seeds x {} forward rollouts of compute per method{}",
+                scene_path.display(),
+                o.seeds,
+                o.budget,
+                if resume { ", resuming" } else { "" }
+            );
+        }
+        let r = optim::run(
+            &problem,
+            &optim::Options {
+                settings,
+                out: out.clone(),
+                resume,
+                quiet: o.quiet,
+            },
+        )
+        .with_context(|| format!("task {}", scene_path.display()))?;
+        let unit = r.summary["indicator_unit"]
+            .as_str()
+            .unwrap_or("")
+            .to_string();
+        let target = r.summary["target_value"].as_f64().unwrap_or(f64::NAN);
+        let wall: BTreeMap<String, f64> = o
+            .methods
+            .iter()
+            .map(|m| {
+                let w = r.summary["methods"][m.name()]["wall_s"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN);
+                (m.name().to_string(), w)
+            })
+            .collect();
+        let t = analyse(&stem, &unit, target, &o.methods, &r.records, wall);
+        for row in &t.rows {
+            for (k, (c, e)) in row
+                .dose_equal_compute
+                .iter()
+                .zip(&row.dose_equal_rollouts)
+                .enumerate()
+            {
+                let _ = writeln!(csv, "{stem},{},{k},{c},{e}", row.method.name());
+            }
+        }
+        curves.push(Curves {
+            title: format!("{stem} ({target} {unit})"),
+            unit: unit.clone(),
+            by_compute: median_curves(&r.records, true, 60),
+            by_rollouts: median_curves(&r.records, false, 60),
+        });
+        results.push(t);
+    }
+    crate::util::create_output_dir(&o.results, "--results")?;
+    figure(&o.results.join("optimisation.svg"), &curves)?;
+    crate::util::write_atomic(&o.results.join("optimisation.csv"), csv.as_bytes())?;
+    let md = page(o, &results);
+    crate::util::write_atomic(&o.results.join("optimisation.md"), md.as_bytes())?;
+    Ok(md)
+}
+
+/// Tape memory of one backward pass (1 GiB, the `optimize` default).
+pub const TAPE_BUDGET: usize = 1 << 30;
+
+/// The page: how it was made, the verdict per task, the tables.
+pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
+    use std::fmt::Write;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "# Optimisation benchmark: every method at equal compute\n"
+    );
+    let _ = writeln!(s, "Regenerate: `{}`  ", o.command);
+    let _ = writeln!(s, "Machine: {}.\n", machine());
+    let _ = writeln!(
+        s,
+        "Each task is one skill scene. Every method starts seed k from the same Θ_init and gets the compute of {b} forward rollouts per seed: random search, CMA-ES and SAC run {b} forward rollouts; grad and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up; the hybrid spends half its budget on Sobol points and the rest on trust-region steps along the adjoint gradient. \
+A method's score after some compute is the dose error |target − delivered| of its rollout of lowest loss so far. **Equal compute** reads every method at each seed's smallest spend of simulated particle-substeps over the methods; **equal rollouts** reads every method after the fewest rollouts any method ran. p is the one-sided exact Wilcoxon signed-rank p-value, over the paired seeds, that the method's dose error at equal compute is smaller than the baseline's (ties dropped); a verdict needs p < {ALPHA}. Run time per seed is one core's share (two rollouts run side by side).\n",
+        b = o.budget,
+        c = crate::optim::report::BACKWARD_COST,
+    );
+    let _ = writeln!(
+        s,
+        "![median best dose error against compute and rollouts](optimisation.svg)\n"
+    );
+    for t in results {
+        let best_base = t
+            .ranked()
+            .into_iter()
+            .find(|r| BASELINES.contains(&r.method))
+            .map(|r| r.method.name())
+            .unwrap_or("none");
+        let best = t
+            .ranked()
+            .first()
+            .map(|r| r.method.name())
+            .unwrap_or("none");
+        let _ = writeln!(
+            s,
+            "## {} (target {} {}, {} paired seeds)\n",
+            t.scene, t.target, t.unit, t.seeds
+        );
+        let winners = t.winners();
+        let _ = writeln!(
+            s,
+            "Budget: {:.2} G particle-substeps per seed on average. Lowest mean dose error at equal compute: **{best}**; best baseline: {best_base}. {}\n",
+            t.budget_particle_substeps / 1e9,
+            if winners.is_empty() {
+                format!("**No gradient-informed method beats all three baselines at p < {ALPHA}.**")
+            } else {
+                format!(
+                    "Beats all three baselines at p < {ALPHA}: **{}**.",
+                    winners.iter().map(|m| m.name()).collect::<Vec<_>>().join(", ")
+                )
+            }
+        );
+        s.push_str(&table(t));
+        s.push('\n');
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wilcoxon_matches_the_tables() {
+        // All ten differences negative: p = 2^-10 (exact).
+        let a: Vec<f64> = (0..10).map(|i| i as f64).collect();
+        let b: Vec<f64> = (0..10).map(|i| i as f64 + 1.0 + 0.1 * i as f64).collect();
+        assert!((wilcoxon_less(&a, &b).unwrap() - 1.0 / 1024.0).abs() < 1e-15);
+        // The reverse is certain.
+        assert!((wilcoxon_less(&b, &a).unwrap() - 1.0).abs() < 1e-15);
+        // n = 5, ranks 1..5, W+ = 1 + 2 = 3 (the two smallest positive): P(W+ <= 3) = 5/32
+        // (the subsets {}, {1}, {2}, {3}, {1,2}).
+        let d = [1.0, 2.0, -3.0, -4.0, -5.0];
+        let zero = [0.0; 5];
+        assert!((wilcoxon_less(&d, &zero).unwrap() - 5.0 / 32.0).abs() < 1e-15);
+        // Zero differences are dropped; nothing left gives no test.
+        assert_eq!(wilcoxon_less(&[1.0, 2.0], &[1.0, 2.0]), None);
+        // Ties share a rank: |d| = (1, 1), both positive: W+ = 3 of a total 3, p = 1.
+        assert!((wilcoxon_less(&[1.0, 1.0], &[0.0, 0.0]).unwrap() - 1.0).abs() < 1e-15);
+        // ... both negative: only the empty sum is <= 0, p = 1/4.
+        assert!((wilcoxon_less(&[0.0, 0.0], &[1.0, 1.0]).unwrap() - 0.25).abs() < 1e-15);
+    }
+}

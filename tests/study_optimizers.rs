@@ -1,0 +1,111 @@
+//! `powderlab study optimizers` on a seconds-long skill scene: every method named runs on the
+//! paired seeds within the same compute, the hybrid stays inside its budget, and the page,
+//! figure and table come out with a Wilcoxon p-value against each baseline.
+
+#![cfg(feature = "lab")]
+
+use std::process::Command;
+
+const SCENE: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/tests/scenes/tiny_transport.ron"
+);
+
+#[test]
+fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
+    let dir = std::env::temp_dir().join(format!("powderlab-study-opt-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let run = || {
+        Command::new(env!("CARGO_BIN_EXE_powderlab"))
+            .args([
+                "study",
+                "optimizers",
+                "--tasks",
+                SCENE,
+                "--seeds",
+                "2",
+                "--budget",
+                "7",
+                "--method",
+                "hybrid,grad,random",
+                "--json",
+                "--out",
+            ])
+            .arg(&dir)
+            .arg("--results")
+            .arg(dir.join("results"))
+            .output()
+            .unwrap()
+    };
+    let o = run();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let page = std::fs::read_to_string(dir.join("results/optimisation.md")).unwrap();
+    assert!(page.starts_with("# Optimisation benchmark"));
+    assert!(page.contains("Regenerate: `powderlab study optimizers --tasks"));
+    for m in ["hybrid", "grad", "random"] {
+        assert!(page.contains(&format!("\n| {m} |")), "{m} missing:\n{page}");
+    }
+    assert!(
+        std::fs::metadata(dir.join("results/optimisation.svg"))
+            .unwrap()
+            .len()
+            > 1000
+    );
+    let csv = std::fs::read_to_string(dir.join("results/optimisation.csv")).unwrap();
+    // One row per method and seed.
+    assert_eq!(csv.lines().count(), 1 + 3 * 2, "{csv}");
+
+    // The hybrid's run: half the budget (3 forward rollouts, Θ_init first) on Sobol points,
+    // then a gradient rollout at the best of them; its compute never passes 7 forward
+    // rollouts, a gradient rollout counted at 1 + BACKWARD_COST.
+    let journal =
+        std::fs::read_to_string(dir.join("optimizers/tiny_transport/journal.jsonl")).unwrap();
+    for seed in 0..2 {
+        let hybrid: Vec<serde_json::Value> = journal
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .filter(|r| r["method"] == "hybrid" && r["seed"] == seed)
+            .collect();
+        let grads: Vec<bool> = hybrid.iter().map(|r| !r["grad"].is_null()).collect();
+        assert_eq!(&grads[..4], &[false, false, false, true], "{grads:?}");
+        let units: f64 = grads
+            .iter()
+            .map(|g| {
+                if *g {
+                    1.0 + powderlab::optim::report::BACKWARD_COST
+                } else {
+                    1.0
+                }
+            })
+            .sum();
+        assert!(units <= 7.0 + 1e-9, "{units}");
+        // The gradient rollout runs at the global phase's best Θ.
+        let best = hybrid[..3]
+            .iter()
+            .min_by(|a, b| {
+                a["loss"]
+                    .as_f64()
+                    .unwrap()
+                    .total_cmp(&b["loss"].as_f64().unwrap())
+            })
+            .unwrap();
+        assert_eq!(best["theta"], hybrid[3]["theta"]);
+    }
+    // Equal compute gives grad ⌈7/3.4⌉ = 3 gradient rollouts per seed.
+    let grad_rollouts = journal
+        .lines()
+        .filter(|l| l.contains("\"method\":\"grad\""))
+        .count();
+    assert_eq!(grad_rollouts, 3 * 2);
+
+    // A second run replays every rollout from the journals and writes the same table.
+    let o2 = run();
+    assert!(
+        o2.status.success(),
+        "{}",
+        String::from_utf8_lossy(&o2.stderr)
+    );
+    let csv2 = std::fs::read_to_string(dir.join("results/optimisation.csv")).unwrap();
+    assert_eq!(csv, csv2);
+    let _ = std::fs::remove_dir_all(&dir);
+}
