@@ -12,29 +12,6 @@ mod common;
 const E2E_REL_TOL: f64 = 1e-3;
 const STEPS: usize = 20;
 
-const SRC: &str = r#"Scene(
-    simulation: (cells: (24, 22, 30), dx: 0.005, dt: 0.01, substeps: 10, stability: Auto, seed: 3),
-    materials: { "powder": DruckerPrager((youngs_modulus: 4e3, friction_deg: 30.0)) },
-    bodies: [(name: "powder", material: "powder", fill: InsideContainer(container: "cup", height: 0.015),
-              particles_per_cell: 1, lattice: Jittered(0.3))],
-    colliders: [
-        (name: "cup", kind: Container,
-         shape: Cup(outer_radius: 0.03, height: 0.04, wall_thickness: 0.002, floor_thickness: 0.003),
-         position: (0.0601234, 0.0150321, 0.0598765), friction: 0.4),
-        (name: "spoon", kind: Tool,
-         shape: Spoon(bowl_radius: 0.012, bowl_depth: 0.007, thickness: 0.0015,
-                      handle_length: 0.03, handle_radius: 0.002, handle_rise: 0.06),
-         position: (0.0603456, 0.0521234, 0.0587654), rotation_deg: (0.0, -90.0, 0.0), friction: 0.3,
-         control: Skill((
-             theta: (0.31, 0.27, 0.0, 0.0, 0.0),
-             ranges: (scoop_depth: (0.004, 0.012), scoop_angle_deg: (10.0, 40.0), lift_height: (0.02, 0.04),
-                      transport_distance: (0.05, 0.08), pour_angle_deg: (60.0, 120.0)),
-             linear_speed: 0.3, angular_speed_deg: 300.0, scoop_stroke: 0.004, surface_height: 0.0333,
-             settle_steps: 5,
-         ))),
-    ],
-)"#;
-
 fn target() -> DVec3 {
     DVec3::new(0.1, 0.0, 0.06)
 }
@@ -54,7 +31,7 @@ fn close(fd: f64, ad: f64, what: &str) {
 
 #[test]
 fn skill_and_material_gradients_through_the_spoon() {
-    let scene = common::parse(SRC).unwrap();
+    let scene = common::load_test_scene("spoon_scoop.ron");
     let mut sim = common::build(&scene, 2);
     let n = sim.particle_count();
     assert!((100..1000).contains(&n), "a few hundred particles: {n}");

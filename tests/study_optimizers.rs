@@ -1,6 +1,7 @@
 //! `powderlab study optimizers` on a seconds-long skill scene: every method named runs on the
 //! paired seeds within the same compute, the hybrid stays inside its budget, and the page,
-//! figure and table come out with a Wilcoxon p-value against each baseline.
+//! figure and table come out with a Wilcoxon p-value against each baseline. The carry method
+//! descends its own loss but reports the scene's.
 
 #![cfg(feature = "lab")]
 
@@ -27,7 +28,7 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
                 "--budget",
                 "7",
                 "--method",
-                "hybrid,grad,random",
+                "hybrid,grad,carry,random",
                 "--json",
                 "--out",
             ])
@@ -42,7 +43,7 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
     let page = std::fs::read_to_string(dir.join("results/optimisation.md")).unwrap();
     assert!(page.starts_with("# Optimisation benchmark"));
     assert!(page.contains("Regenerate: `powderlab study optimizers --tasks"));
-    for m in ["hybrid", "grad", "random"] {
+    for m in ["hybrid", "grad", "carry", "random"] {
         assert!(page.contains(&format!("\n| {m} |")), "{m} missing:\n{page}");
     }
     assert!(
@@ -53,7 +54,7 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
     );
     let csv = std::fs::read_to_string(dir.join("results/optimisation.csv")).unwrap();
     // One row per method and seed.
-    assert_eq!(csv.lines().count(), 1 + 3 * 2, "{csv}");
+    assert_eq!(csv.lines().count(), 1 + 4 * 2, "{csv}");
 
     // The hybrid's run: half the budget (3 forward rollouts, Θ_init first) on Sobol points,
     // then a gradient rollout at the best of them; its compute never passes 7 forward
@@ -98,6 +99,21 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
         .count();
     assert_eq!(grad_rollouts, 3 * 2);
 
+    // carry's first rollout runs at the same Θ_init as grad's, and reports the scene's loss
+    // (what selects the best rollout), bitwise grad's; its gradient is the carry loss's.
+    let first = |m: &str, seed: u64| -> serde_json::Value {
+        journal
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .find(|r| r["method"] == m && r["seed"] == seed && r["batch"] == 0)
+            .unwrap()
+    };
+    for seed in 0..2 {
+        let (g, c) = (first("grad", seed), first("carry", seed));
+        assert_eq!(g["theta"], c["theta"]);
+        assert_eq!(g["loss"], c["loss"]);
+        assert_ne!(g["grad"], c["grad"]);
+    }
     // A second run replays every rollout from the journals and writes the same table.
     let o2 = run();
     assert!(

@@ -160,6 +160,123 @@ pub fn loss_target(scene: &Scene) -> DVec3 {
     DVec3::new(0.5 * (lo.x + hi.x), lo.y, 0.5 * (lo.z + hi.z))
 }
 
+/// A loss on what a tool carries at one step: `w·((C − c*)/c*)²` with the soft carried mass
+/// `C = Σ_p m_p·σ((r − ‖q_p − c‖)/ε)`, `q_p = Rᵀ(x_p − t)` the particle in the tool's frame,
+/// and a ball of radius `r` about `c` in that frame (for a spoon, the bowl's sphere, `c = 0`:
+/// its cavity and a heap up to a radius above the rim). Eq. 5 and the dosing loss see where grains end;
+/// this sees how many the tool holds while it moves, which is what the scoop parameters set.
+///
+/// Its gradient reaches the particles and, because the ball moves with the tool, the tool's
+/// pose: with rotations as world-frame perturbations `δR = [δθ]×·R` (the convention of the
+/// tool-move adjoint), `∂C/∂t = −Σ ∂C/∂x_p` and `∂C/∂θ = Σ ∂C/∂x_p × (x_p − t)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Carry {
+    /// The tool's collider name.
+    pub tool: String,
+    /// The global step whose start state is scored (`steps` for the final state).
+    pub step: usize,
+    /// Centre `c` of the ball in the tool's frame (m).
+    pub centre: DVec3,
+    /// Radius `r` of the ball (m).
+    pub radius: f64,
+    /// Width `ε` of the logistic ramp (m), > 0.
+    pub width: f64,
+    /// Mass of one particle of each body (kg), in scene order.
+    pub particle_mass: Vec<f64>,
+    /// Target carried mass `c*` (kg), > 0.
+    pub target_mass: f64,
+    /// Weight `w` of the term.
+    pub weight: f64,
+}
+
+/// A [`Carry`] term's value and gradients.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CarryGrad {
+    pub value: f64,
+    /// The soft carried mass `C` (kg).
+    pub mass: f64,
+    pub x: Vec<Vec<DVec3>>,
+    /// `∂/∂t` of the tool's translation.
+    pub translation: DVec3,
+    /// `∂/∂θ`, a world-frame rotation perturbation of the tool.
+    pub rotation: DVec3,
+}
+
+/// The soft ball indicator `σ((r − ‖q‖)/ε)` of a world point `x`, `q = Rᵀ(x − t) − c`, and its
+/// world gradient `∂/∂x`.
+pub fn soft_ball(
+    x: DVec3,
+    pose: &crate::math::pose::Pose,
+    centre: DVec3,
+    radius: f64,
+    width: f64,
+) -> (f64, DVec3) {
+    let q = pose.to_local(x) - centre;
+    let d = q.length();
+    let s = logistic((radius - d) / width);
+    if d == 0.0 {
+        return (s, DVec3::ZERO);
+    }
+    // ∂s/∂q = −σ'(z)/ε · q/‖q‖, and ∂q/∂x = Rᵀ, so ∂s/∂x = R·∂s/∂q.
+    let g_local = q * (-s * (1.0 - s) / (width * d));
+    (s, pose.rotation * g_local)
+}
+
+fn logistic(z: f64) -> f64 {
+    if z >= 0.0 {
+        1.0 / (1.0 + (-z).exp())
+    } else {
+        let e = z.exp();
+        e / (1.0 + e)
+    }
+}
+
+impl Carry {
+    /// The value and gradients at positions `xs` (per body) with the tool at `pose`.
+    pub fn eval(&self, xs: &[Vec<DVec3>], pose: &crate::math::pose::Pose) -> CarryGrad {
+        let mut mass = 0.0;
+        let per: Vec<Vec<(f64, DVec3)>> = xs
+            .iter()
+            .zip(&self.particle_mass)
+            .map(|(x, &m)| {
+                x.iter()
+                    .map(|p| {
+                        let (s, g) = soft_ball(*p, pose, self.centre, self.radius, self.width);
+                        mass += m * s;
+                        (s, g * m)
+                    })
+                    .collect()
+            })
+            .collect();
+        let r = (mass - self.target_mass) / self.target_mass;
+        let g_mass = self.weight * 2.0 * r / self.target_mass;
+        let mut translation = DVec3::ZERO;
+        let mut rotation = DVec3::ZERO;
+        let x: Vec<Vec<DVec3>> = per
+            .iter()
+            .zip(xs)
+            .map(|(b, xb)| {
+                b.iter()
+                    .zip(xb)
+                    .map(|(&(_, g), p)| {
+                        let gx = g * g_mass;
+                        translation -= gx;
+                        rotation += gx.cross(*p - pose.translation);
+                        gx
+                    })
+                    .collect()
+            })
+            .collect();
+        CarryGrad {
+            value: self.weight * r * r,
+            mass,
+            x,
+            translation,
+            rotation,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -245,5 +362,76 @@ mod tests {
         assert!((l - 0.5).abs() < 1e-15);
         assert!((g[0][0] - DVec3::new(0.0, 0.6, 0.8)).length() < 1e-15);
         assert_eq!(g[0][1], DVec3::ZERO);
+    }
+
+    #[test]
+    fn carry_gradient_matches_central_differences_in_the_particles_and_the_pose() {
+        use crate::math::pose::quat_from_rotation_vector;
+        let pose = Pose {
+            translation: DVec3::new(0.06, 0.07, 0.05),
+            rotation: DQuat::from_euler(glam::EulerRot::XYZ, 0.3, -1.2, 0.4),
+        };
+        let xs: Vec<Vec<DVec3>> = vec![
+            [
+                (0.004, 0.003, -0.002),
+                (0.011, -0.009, 0.004),
+                (-0.013, 0.002, 0.006),
+            ]
+            .iter()
+            .map(|&(a, b, c)| pose.to_world(DVec3::new(a, b, c)))
+            .collect(),
+            vec![pose.to_world(DVec3::new(0.0, 0.0145, 0.003))],
+        ];
+        let carry = Carry {
+            tool: "spoon".into(),
+            step: 0,
+            // Off the frame's origin, so that turning the tool moves the ball.
+            centre: DVec3::new(0.002, 0.006, -0.001),
+            radius: 0.015,
+            width: 0.003,
+            particle_mass: vec![2.3e-5, 4.0e-5],
+            target_mass: 5e-5,
+            weight: 1.7,
+        };
+        let g = carry.eval(&xs, &pose);
+        assert!(g.mass > 0.0 && g.value > 0.0);
+        let check = |fd: f64, ad: f64, what: &str| {
+            assert!(
+                (fd - ad).abs() <= REL_TOL * fd.abs().max(ad.abs()).max(1e-3),
+                "{what}: fd {fd} adjoint {ad}"
+            );
+        };
+        let h = FD_EPS * 1e-2;
+        for b in 0..xs.len() {
+            for i in 0..xs[b].len() {
+                for a in 0..3 {
+                    let (mut p, mut m) = (xs.clone(), xs.clone());
+                    p[b][i][a] += h;
+                    m[b][i][a] -= h;
+                    let fd =
+                        (carry.eval(&p, &pose).value - carry.eval(&m, &pose).value) / (2.0 * h);
+                    check(fd, g.x[b][i][a], &format!("x[{b}][{i}][{a}]"));
+                }
+            }
+        }
+        for a in 0..3 {
+            let mut e = DVec3::ZERO;
+            e[a] = h;
+            let moved = |d: DVec3| Pose {
+                translation: pose.translation + d,
+                ..pose
+            };
+            let fd =
+                (carry.eval(&xs, &moved(e)).value - carry.eval(&xs, &moved(-e)).value) / (2.0 * h);
+            check(fd, g.translation[a], &format!("t[{a}]"));
+            // δR = [δθ]×·R: a world-frame rotation applied after R.
+            let turned = |d: DVec3| Pose {
+                rotation: quat_from_rotation_vector(d) * pose.rotation,
+                ..pose
+            };
+            let fd = (carry.eval(&xs, &turned(e)).value - carry.eval(&xs, &turned(-e)).value)
+                / (2.0 * h);
+            check(fd, g.rotation[a], &format!("theta[{a}]"));
+        }
     }
 }

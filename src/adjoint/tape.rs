@@ -20,7 +20,7 @@ use super::checkpoint::{checkpoint_interval, restore, snapshot};
 pub use super::checkpoint::{Snapshot, Tape};
 use super::gravity::GravityAdj;
 use super::grid_collision::ColliderAdj;
-pub use super::loss::Loss;
+pub use super::loss::{Carry, CarryGrad, Loss};
 use super::particle_collision::ParticleCollisionInput;
 use super::replay::{Replay, SubstepRecord, Timing};
 use super::tool_move::ControlAdj;
@@ -101,15 +101,77 @@ pub fn gradient(
     loss: &Loss,
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
-    sim.on_worker(|sim| gradient_in_pool(sim, steps, loss, tape))
+    gradient_with(sim, steps, loss, &[], tape)
+}
+
+/// [`gradient`] of `loss` on the final positions plus `terms`, each a [`Carry`] loss on the
+/// state at the start of its step (a tool's carried mass while it moves). The reverse sweep
+/// adds each term's gradient to the particles' and the tool's adjoints when it reaches the
+/// term's step.
+pub fn gradient_with(
+    sim: &mut Simulation,
+    steps: usize,
+    loss: &Loss,
+    terms: &[Carry],
+    tape: Tape,
+) -> Result<Gradients, AdjointError> {
+    sim.on_worker(|sim| gradient_in_pool(sim, steps, loss, terms, tape))
+}
+
+/// Every body's positions, in scene order, and the pose of the collider named `tool`.
+fn positions_and_pose(
+    world: &mut World,
+    tool: &str,
+) -> Result<(Vec<Vec<DVec3>>, crate::math::pose::Pose), AdjointError> {
+    let mut q = world.query::<(&Body, &Position)>();
+    let mut xs: Vec<(usize, Vec<DVec3>)> =
+        q.iter(world).map(|(b, x)| (b.index, x.0.clone())).collect();
+    xs.sort_by_key(|e| e.0);
+    let mut c = world.query::<(&Collider, &ColliderPose)>();
+    let pose = c
+        .iter(world)
+        .find(|(c, _)| c.name == tool)
+        .map(|(_, p)| p.pose)
+        .ok_or_else(|| {
+            AdjointError::NotDifferentiable(format!(
+                "a carry loss names a tool '{tool}' the scene does not have"
+            ))
+        })?;
+    Ok((xs.into_iter().map(|e| e.1).collect(), pose))
+}
+
+/// Adds a carry term's gradient to the adjoint state (the particles' positions and its tool's
+/// pose).
+fn add_carry_gradient(world: &mut World, bodies: &[Entity], term: &Carry, g: &CarryGrad) {
+    for (e, gx) in bodies.iter().zip(&g.x) {
+        if let Some(mut adj) = world.get_mut::<PositionAdj>(*e) {
+            for (a, b) in adj.0.iter_mut().zip(gx) {
+                *a += *b;
+            }
+        }
+    }
+    let mut q = world.query::<(&Collider, &mut ColliderAdj)>();
+    for (c, mut a) in q.iter_mut(world) {
+        if c.name == term.tool {
+            a.translation += g.translation;
+            a.rotation += g.rotation;
+        }
+    }
 }
 
 fn gradient_in_pool(
     sim: &mut Simulation,
     steps: usize,
     loss: &Loss,
+    terms: &[Carry],
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
+    if let Some(t) = terms.iter().find(|t| t.step > steps) {
+        return Err(AdjointError::NotDifferentiable(format!(
+            "a carry loss at step {} of a {steps}-step pass",
+            t.step
+        )));
+    }
     for c in &sim.scene.colliders {
         if c.kind != crate::scene::ColliderKindSpec::Tool {
             continue;
@@ -165,7 +227,19 @@ fn gradient_in_pool(
     let mut checkpoints = Vec::with_capacity(steps.div_ceil(k));
     let last_segment = (steps - 1) / k * k;
     let mut last_starts = Vec::new();
+    // Each carry term's value and gradients, from the forward state at its step.
+    let mut carried: Vec<Option<CarryGrad>> = vec![None; terms.len()];
+    let mut score = |world: &mut World, s: usize| -> Result<(), AdjointError> {
+        for (t, slot) in terms.iter().zip(carried.iter_mut()) {
+            if t.step == s {
+                let (xs, pose) = positions_and_pose(world, &t.tool)?;
+                *slot = Some(t.eval(&xs, &pose));
+            }
+        }
+        Ok(())
+    };
     for s in 0..steps {
+        score(&mut sim.world, s)?;
         if s % k == 0 {
             checkpoints.push(snapshot(&mut sim.world));
         }
@@ -174,12 +248,26 @@ fn gradient_in_pool(
         }
         sim.step()?;
     }
+    score(&mut sim.world, steps)?;
+    let carried: Vec<CarryGrad> = carried
+        .into_iter()
+        .map(|c| c.expect("every term's step was scored"))
+        .collect();
     let final_state = snapshot(&mut sim.world);
     timing.add("forward (taped)", t_pass.elapsed().as_secs_f64());
     let final_x: Vec<Vec<DVec3>> = final_state.bodies.iter().map(|b| b.x.clone()).collect();
-    let (loss_value, g_x) = loss.eval(&final_x);
+    let (final_value, g_x) = loss.eval(&final_x);
+    let loss_value = final_value + carried.iter().map(|c| c.value).sum::<f64>();
 
     let (body_ents, collider_ents) = install_adjoint_state(&mut sim.world, g_x);
+    let add_terms_at = |world: &mut World, s: usize| {
+        for (t, g) in terms.iter().zip(&carried) {
+            if t.step == s {
+                add_carry_gradient(world, &body_ents, t, g);
+            }
+        }
+    };
+    add_terms_at(&mut sim.world, steps);
     let plan = sim.plan.clone();
     let mut replay = Replay::new(&mut sim.world, &plan, body_ents.clone(), substeps);
     let mut peak_snaps = checkpoints.len();
@@ -204,6 +292,7 @@ fn gradient_in_pool(
         for (si, ss) in step_starts.iter().enumerate().rev() {
             replay.recompute_step(sim, ss, &mut timing)?;
             replay.reverse_step(sim, s0 + si, &mut timing)?;
+            add_terms_at(&mut sim.world, s0 + si);
         }
     }
     let snap_bytes = start.bytes();

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 pub struct Args {
     /// The scene whose tool has a skill control.
     scene: PathBuf,
-    /// grad, cmaes, sac, random, smoothed, hybrid, paper (the first four, the default) or all
+    /// grad, cmaes, sac, random, smoothed, hybrid, carry, paper (the first four, the default) or all
     /// (comma separated).
     #[arg(long, value_delimiter = ',', default_value = "paper")]
     method: Vec<String>,
@@ -110,7 +110,7 @@ pub fn run(args: Args) -> Result<()> {
                 }
             }
             None => {
-                bail!("--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, paper or all")
+                bail!("--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, paper or all")
             }
         }
     }

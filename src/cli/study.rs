@@ -315,7 +315,7 @@ fn optimizers_cmd(a: Args) -> Result<()> {
     for m in &a.method {
         let Some(ms) = Method::parse_list(m) else {
             bail!(
-                "--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, paper or all"
+                "--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, paper or all"
             );
         };
         for m in ms {

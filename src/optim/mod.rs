@@ -14,6 +14,11 @@
 //!   fewer steps; the curriculum frees θ_t and θ_p after the same number of rollouts as grad.
 //! - **hybrid** (not the paper's; by name only): Sobol points first, then trust-region steps
 //!   along the adjoint gradient from the best of them ([`hybrid`]).
+//! - **carry** (not the paper's; by name only): grad's RMSprop and curriculum, but while the
+//!   curriculum moves only the scoop parameters it descends the carry loss (the spoon's soft
+//!   carried mass against the target at the end of the lift and of the transport,
+//!   [`problem::Problem::carry_terms`]), a loss whose derivative sees how much the spoon holds;
+//!   then the scene's loss. Every rollout still reports the scene's loss.
 //!
 //! **Budget.** Every method gets `epochs` rollouts per seed; the x-axis of the results is the
 //! number of rollouts so far ("epoch"). What a method has found after `k` rollouts is its
@@ -73,17 +78,19 @@ pub enum Method {
     Random,
     Smoothed,
     Hybrid,
+    Carry,
 }
 
 impl Method {
     /// Every method.
-    pub const ALL: [Method; 6] = [
+    pub const ALL: [Method; 7] = [
         Method::Grad,
         Method::Cmaes,
         Method::Sac,
         Method::Random,
         Method::Smoothed,
         Method::Hybrid,
+        Method::Carry,
     ];
     /// The paper's comparison: `optimize`'s default.
     pub const PAPER: [Method; 4] = [Method::Grad, Method::Cmaes, Method::Sac, Method::Random];
@@ -96,12 +103,13 @@ impl Method {
             Method::Random => "random",
             Method::Smoothed => "smoothed",
             Method::Hybrid => "hybrid",
+            Method::Carry => "carry",
         }
     }
 
     /// Whether every rollout of the method runs the backward pass too.
     pub fn all_gradient(self) -> bool {
-        matches!(self, Method::Grad | Method::Smoothed)
+        matches!(self, Method::Grad | Method::Smoothed | Method::Carry)
     }
 
     /// Parses a method name, `paper` (the paper's four) or `all`.
@@ -159,6 +167,17 @@ impl Settings {
             }
             _ => n.max(1),
         }
+    }
+
+    /// RMSprop's settings for `method`: with `equal_compute`, the curriculum's switch comes
+    /// after the same fraction of the method's rollouts as `switch_epoch` is of `epochs`.
+    pub fn rmsprop_for(&self, method: Method) -> RmsProp {
+        let mut r = self.rmsprop;
+        if self.equal_compute && method.all_gradient() && self.epochs > 0 {
+            let frac = self.rmsprop.switch_epoch as f64 / self.epochs as f64;
+            r.switch_epoch = ((frac * self.epochs_for(method) as f64).round() as usize).max(1);
+        }
+        r
     }
 }
 
@@ -301,7 +320,7 @@ pub fn run(problem: &Problem, opts: &Options) -> anyhow::Result<RunSummary> {
             carried: journal.carried_elapsed(m),
         };
         match m {
-            Method::Grad => runner.grad(s)?,
+            Method::Grad | Method::Carry => runner.descend(s, m)?,
             Method::Cmaes => runner.cmaes(s)?,
             Method::Sac => runner.sac(s)?,
             Method::Random => runner.random(s)?,
@@ -417,6 +436,17 @@ mod tests {
         for m in [Method::Random, Method::Cmaes, Method::Sac, Method::Hybrid] {
             assert_eq!(s.epochs_for(m), 20, "{m:?}");
         }
+        // The curriculum switches after the same fraction of each method's rollouts: half of
+        // 20 forward rollouts, three of grad's six, one step of smoothed's two.
+        let mut h = settings(20, true);
+        h.rmsprop.switch_epoch = 10;
+        assert_eq!(h.rmsprop_for(Method::Grad).switch_epoch, 3);
+        assert_eq!(h.rmsprop_for(Method::Carry).switch_epoch, 3);
+        assert_eq!(h.rmsprop_for(Method::Smoothed).switch_epoch, 4);
+        assert_eq!(
+            settings(20, false).rmsprop_for(Method::Grad).switch_epoch,
+            15
+        );
         // Without it every method gets the same rollouts (the paper's framing).
         let p = settings(20, false);
         assert!(Method::ALL.iter().all(|&m| p.epochs_for(m) == 20));

@@ -18,6 +18,7 @@ pub fn colour(m: Method) -> RGBColor {
         Method::Random => RGBColor(127, 127, 127),
         Method::Smoothed => RGBColor(148, 103, 189),
         Method::Hybrid => RGBColor(140, 86, 75),
+        Method::Carry => RGBColor(23, 190, 207),
     }
 }
 

@@ -2,7 +2,7 @@
 //! parameters Θ (forward only, or with `∂L/∂Θ` from the adjoint pass).
 
 use crate::adjoint::loss::scene_loss;
-use crate::adjoint::tape::{gradient, Loss, Tape};
+use crate::adjoint::tape::{gradient_with, Carry, Loss, Tape};
 use crate::error::FieldError;
 use crate::metrics::frame_metrics;
 use crate::scene::{ControlSpec, Scene, TargetValue};
@@ -158,8 +158,18 @@ impl Problem {
         sim: &mut Simulation,
         loss: &Loss,
     ) -> Result<(f64, [f64; 5]), crate::error::AdjointError> {
+        self.skill_gradient_with(sim, loss, &[])
+    }
+
+    /// [`Problem::skill_gradient`] of `loss` plus the carry `terms`.
+    pub fn skill_gradient_with(
+        &self,
+        sim: &mut Simulation,
+        loss: &Loss,
+        terms: &[Carry],
+    ) -> Result<(f64, [f64; 5]), crate::error::AdjointError> {
         let steps = sim.horizon;
-        let g = gradient(sim, steps, loss, Tape::Budget(self.tape_budget))?;
+        let g = gradient_with(sim, steps, loss, terms, Tape::Budget(self.tape_budget))?;
         // The simulation's scene carries the rollout's Θ, which the skill's adjoint needs.
         let tool = &sim.scene.colliders[self.tool];
         let g_u = g
@@ -169,6 +179,93 @@ impl Problem {
             .skill_gradient(sim.scene.simulation.dt, g_u)
             .expect("checked in Problem::new: the tool has a skill");
         Ok((g.loss, gt))
+    }
+
+    /// The carry terms of Θ's rollout (see [`Carry`]): the spoon's soft carried mass against
+    /// the task's target mass at the end of the lift and at the end of the transport, each of
+    /// weight 1, in a ball of the bowl's radius about the bowl's sphere and a ramp one particle
+    /// spacing wide. `None` unless the tool is a spoon.
+    pub fn carry_terms(&self, theta: [f64; 5]) -> Option<Vec<Carry>> {
+        let scene = self.scene_at(theta);
+        let tool = &scene.colliders[self.tool];
+        let crate::math::sdf::Shape::Spoon { bowl_radius, .. } = tool.shape else {
+            return None;
+        };
+        let Some(ControlSpec::Skill(sk)) = &tool.control else {
+            return None;
+        };
+        let (_, phases) = sk.controls(scene.simulation.dt, Scene::tool_bottom(tool));
+        let masses = scene.particle_masses();
+        let target_mass = match self.target {
+            TargetValue::Grams(g) => g * 1e-3,
+            TargetValue::Particles(n) => n * masses.first().copied().unwrap_or(0.0),
+        };
+        let width = scene
+            .bodies
+            .iter()
+            .map(|b| scene.particle_spacing(b))
+            .fold(scene.simulation.dx, f64::min);
+        // Phases: descend, scoop, lift, transport, pour, settle.
+        let lift_end = phases[0] + phases[1] + phases[2];
+        let transport_end = lift_end + phases[3];
+        Some(
+            [lift_end, transport_end]
+                .into_iter()
+                .map(|step| Carry {
+                    tool: tool.name.clone(),
+                    step,
+                    centre: glam::DVec3::ZERO,
+                    radius: bowl_radius,
+                    width,
+                    particle_mass: masses.clone(),
+                    target_mass,
+                    weight: 1.0,
+                })
+                .collect(),
+        )
+    }
+
+    /// One rollout at Θ whose gradient is that of the carry terms ([`Problem::carry_terms`])
+    /// alone; its `loss` is still the scene's loss (what every method is selected by), and the
+    /// carry objective's value is returned beside it.
+    pub fn evaluate_carry(
+        &self,
+        theta: [f64; 5],
+        shared_pool: bool,
+    ) -> anyhow::Result<(Outcome, f64)> {
+        let t0 = Instant::now();
+        let terms = self
+            .carry_terms(theta)
+            .context("the carry loss needs a spoon tool (a ball about its bowl)")?;
+        let mut sim = self.simulation(theta, shared_pool)?;
+        let steps = sim.horizon;
+        let substeps = sim.params().substeps;
+        let particles = sim.particle_count();
+        let nothing = Loss::Linear(
+            sim.body_states()
+                .iter()
+                .map(|b| vec![glam::DVec3::ZERO; b.x.len()])
+                .collect(),
+        );
+        let (carried, grad) = self
+            .skill_gradient_with(&mut sim, &nothing, &terms)
+            .with_context(|| format!("rollout at Θ = {theta:?}"))?;
+        let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
+        let loss = self.loss.eval(&xs).0;
+        let (transported, indicator) = self.indicator(&mut sim);
+        Ok((
+            Outcome {
+                loss,
+                indicator,
+                transported,
+                grad: Some(grad),
+                steps,
+                substeps,
+                particles,
+                wall_s: t0.elapsed().as_secs_f64(),
+            },
+            carried,
+        ))
     }
 
     /// One rollout at Θ (clamped to [−1, 1] by the caller), with the gradient if asked.

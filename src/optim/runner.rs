@@ -53,6 +53,18 @@ impl Board {
     }
 }
 
+/// What a rollout computes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Pass {
+    /// The forward pass only.
+    Forward,
+    /// The gradient of the scene's loss.
+    Gradient,
+    /// The gradient of the carry terms ([`super::problem::Problem::carry_terms`]); the loss
+    /// reported is still the scene's.
+    Carry,
+}
+
 /// Runs rollouts through the journal.
 pub(super) struct Runner<'a> {
     pub(super) problem: &'a Problem,
@@ -72,12 +84,16 @@ impl Runner<'_> {
         seed: usize,
         batch: usize,
         theta: [f64; 5],
-        with_grad: bool,
+        pass: Pass,
     ) -> anyhow::Result<Record> {
         let r = match self.journal.replay(method, seed, batch, &theta) {
             Some(r) => r,
             None => {
-                let o = self.problem.evaluate(theta, with_grad, true)?;
+                let o = match pass {
+                    Pass::Forward => self.problem.evaluate(theta, false, true)?,
+                    Pass::Gradient => self.problem.evaluate(theta, true, true)?,
+                    Pass::Carry => self.problem.evaluate_carry(theta, true)?.0,
+                };
                 let r = Record {
                     method,
                     seed,
@@ -94,7 +110,11 @@ impl Runner<'_> {
         Ok(r)
     }
 
-    pub(super) fn grad(&self, s: &Settings) -> anyhow::Result<()> {
+    /// RMSprop with the curriculum on the adjoint gradient: `grad` (the paper's method) on the
+    /// scene's loss throughout; `carry` on the carry terms while the curriculum moves only the
+    /// scoop parameters, then on the scene's loss.
+    pub(super) fn descend(&self, s: &Settings, method: Method) -> anyhow::Result<()> {
+        let rms = s.rmsprop_for(method);
         let mut states: Vec<RmsState> = (0..s.seeds)
             .map(|k| RmsState {
                 theta: theta_init(k),
@@ -102,19 +122,24 @@ impl Runner<'_> {
             })
             .collect();
         let mut norms: Vec<Vec<f64>> = vec![Vec::new(); s.seeds];
-        for epoch in 1..=s.epochs_for(Method::Grad) {
+        for epoch in 1..=s.epochs_for(method) {
+            let pass = if method == Method::Carry && epoch <= rms.switch_epoch {
+                Pass::Carry
+            } else {
+                Pass::Gradient
+            };
             let recs: Vec<Record> = states
                 .par_iter()
                 .enumerate()
-                .map(|(k, st)| self.rollout(Method::Grad, k, epoch - 1, st.theta, true))
+                .map(|(k, st)| self.rollout(method, k, epoch - 1, st.theta, pass))
                 .collect::<anyhow::Result<_>>()?;
             for ((st, r), h) in states.iter_mut().zip(&recs).zip(&mut norms) {
                 let g = r
                     .outcome
                     .grad
                     .context("a grad rollout without its gradient")?;
-                let g = s.rmsprop.clip(g, epoch, h);
-                s.rmsprop.step(st, g, epoch);
+                let g = rms.clip(g, epoch, h);
+                rms.step(st, g, epoch);
             }
         }
         Ok(())
@@ -122,6 +147,7 @@ impl Runner<'_> {
 
     pub(super) fn smoothed(&self, s: &Settings) -> anyhow::Result<()> {
         let (n, sigma) = (s.smoothing.samples.max(2), s.smoothing.sigma);
+        let rms = s.rmsprop_for(Method::Smoothed);
         let mut states: Vec<RmsState> = (0..s.seeds)
             .map(|k| RmsState {
                 theta: theta_init(k),
@@ -152,7 +178,7 @@ impl Runner<'_> {
                 .collect();
             let recs: Vec<Record> = jobs
                 .par_iter()
-                .map(|&(k, t, _)| self.rollout(Method::Smoothed, k, step - 1, t, true))
+                .map(|&(k, t, _)| self.rollout(Method::Smoothed, k, step - 1, t, Pass::Gradient))
                 .collect::<anyhow::Result<_>>()?;
             for (k, st) in states.iter_mut().enumerate() {
                 let samples: Vec<smoothing::Sample> = jobs
@@ -172,7 +198,7 @@ impl Runner<'_> {
                     .collect::<anyhow::Result<_>>()?;
                 let (g, _) = smoothing::alpha_order(&samples, sigma);
                 // The curriculum frees θ_t and θ_p after the same rollouts as grad's.
-                s.rmsprop.step(st, g, step * n);
+                rms.step(st, g, step * n);
             }
         }
         Ok(())
@@ -192,7 +218,7 @@ impl Runner<'_> {
             let recs: Vec<Record> = actions
                 .par_iter()
                 .enumerate()
-                .map(|(k, th)| self.rollout(Method::Sac, k, episode, *th, false))
+                .map(|(k, th)| self.rollout(Method::Sac, k, episode, *th, Pass::Forward))
                 .collect::<anyhow::Result<_>>()?;
             agents
                 .par_iter_mut()
@@ -222,7 +248,10 @@ impl Runner<'_> {
             })
             .collect();
         jobs.par_iter()
-            .map(|&(k, i, th)| self.rollout(Method::Random, k, i, th, false).map(|_| ()))
+            .map(|&(k, i, th)| {
+                self.rollout(Method::Random, k, i, th, Pass::Forward)
+                    .map(|_| ())
+            })
             .collect::<anyhow::Result<()>>()
     }
 
@@ -246,7 +275,7 @@ impl Runner<'_> {
                         g.1 -= 1;
                         g.0
                     };
-                    match self.rollout(Method::Cmaes, k, generation, th, false) {
+                    match self.rollout(Method::Cmaes, k, generation, th, Pass::Forward) {
                         Ok(r) => r.outcome.loss,
                         Err(e) => {
                             failure.lock().expect("lock").get_or_insert(e);
@@ -314,7 +343,7 @@ impl Runner<'_> {
             .collect();
         let found: Vec<Record> = jobs
             .par_iter()
-            .map(|&(k, i, t)| self.rollout(Method::Hybrid, k, i, t, false))
+            .map(|&(k, i, t)| self.rollout(Method::Hybrid, k, i, t, Pass::Forward))
             .collect::<anyhow::Result<_>>()?;
         let grad_cost = 1.0 + report::BACKWARD_COST;
         (0..s.seeds).into_par_iter().try_for_each(|k| {
@@ -343,7 +372,7 @@ impl Runner<'_> {
                         if spent + grad_cost > budget + 1e-9 {
                             break;
                         }
-                        let r = self.rollout(Method::Hybrid, k, batch, inc.0, true)?;
+                        let r = self.rollout(Method::Hybrid, k, batch, inc.0, Pass::Gradient)?;
                         batch += 1;
                         spent += grad_cost;
                         grad = Some(
@@ -365,7 +394,7 @@ impl Runner<'_> {
                         None => break,
                     },
                 };
-                let r = self.rollout(Method::Hybrid, k, batch, trial, false)?;
+                let r = self.rollout(Method::Hybrid, k, batch, trial, Pass::Forward)?;
                 batch += 1;
                 spent += 1.0;
                 let better = if searched {

@@ -308,89 +308,6 @@ pub fn table(t: &TaskResult) -> String {
     s
 }
 
-/// A task's curves, for the figure.
-pub struct Curves {
-    pub title: String,
-    pub unit: String,
-    pub by_compute: BTreeMap<Method, Vec<(f64, f64)>>,
-    pub by_rollouts: BTreeMap<Method, Vec<(f64, f64)>>,
-}
-
-/// `optimisation.svg`: per task, the median best-so-far dose error against particle-substeps
-/// (left) and against rollouts (right), log scale.
-pub fn figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::Result<()> {
-    use crate::optim::plot::colour;
-    use plotters::coord::combinators::IntoLogRange;
-    use plotters::prelude::*;
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1100, 380 * tasks.len().max(1) as u32))
-            .into_drawing_area();
-        root.fill(&WHITE)?;
-        let rows = root.split_evenly((tasks.len().max(1), 2));
-        for (i, t) in tasks.iter().enumerate() {
-            for (j, (curves, xdesc)) in [
-                (&t.by_compute, "particle-substeps per seed (G)"),
-                (&t.by_rollouts, "rollouts per seed"),
-            ]
-            .into_iter()
-            .enumerate()
-            {
-                let area = &rows[2 * i + j];
-                let xs = if j == 0 { 1e-9 } else { 1.0 };
-                let x_hi = curves
-                    .values()
-                    .flatten()
-                    .map(|p| p.0 * xs)
-                    .fold(1.0, f64::max);
-                let ys: Vec<f64> = curves
-                    .values()
-                    .flatten()
-                    .map(|p| p.1)
-                    .filter(|y| *y > 0.0)
-                    .collect();
-                let y_lo = ys.iter().copied().fold(f64::INFINITY, f64::min).min(0.01) * 0.8;
-                let y_hi = ys.iter().copied().fold(0.0, f64::max).max(0.1) * 1.25;
-                let mut chart = ChartBuilder::on(area)
-                    .caption(
-                        format!("{}: median best dose error ({})", t.title, t.unit),
-                        ("sans-serif", 14),
-                    )
-                    .margin(10)
-                    .x_label_area_size(36)
-                    .y_label_area_size(52)
-                    .build_cartesian_2d(0f64..x_hi, (y_lo..y_hi).log_scale())?;
-                chart
-                    .configure_mesh()
-                    .x_desc(xdesc)
-                    .y_desc(format!("dose error ({})", t.unit))
-                    .draw()?;
-                for (m, v) in curves {
-                    let c = colour(*m);
-                    chart
-                        .draw_series(LineSeries::new(
-                            v.iter().map(|&(x, y)| (x * xs, y.max(y_lo))),
-                            c.stroke_width(2),
-                        ))?
-                        .label(m.name())
-                        .legend(move |(x, y)| {
-                            PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-                        });
-                }
-                chart
-                    .configure_series_labels()
-                    .background_style(WHITE.mix(0.85))
-                    .border_style(BLACK)
-                    .position(SeriesLabelPosition::UpperRight)
-                    .draw()?;
-            }
-        }
-        root.present()?;
-    }
-    crate::util::write_atomic(path, svg.as_bytes())?;
-    Ok(())
-}
-
 /// What the study runs.
 #[derive(Clone, Debug)]
 pub struct StudyOptions {
@@ -448,7 +365,11 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
             methods: o.methods.clone(),
             epochs: o.budget,
             seeds: o.seeds,
-            rmsprop: Default::default(),
+            // The paper's curriculum frees θ_t and θ_p after half the budget (15 of 30).
+            rmsprop: crate::optim::rmsprop::RmsProp {
+                switch_epoch: o.budget.div_ceil(2),
+                ..Default::default()
+            },
             cmaes: Default::default(),
             sac: Default::default(),
             smoothing: Default::default(),
@@ -502,7 +423,7 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
                 let _ = writeln!(csv, "{stem},{},{k},{c},{e}", row.method.name());
             }
         }
-        curves.push(Curves {
+        curves.push(super::plot::Curves {
             title: format!("{stem} ({target} {unit})"),
             unit: unit.clone(),
             by_compute: median_curves(&r.records, true, 60),
@@ -511,7 +432,7 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
         results.push(t);
     }
     crate::util::create_output_dir(&o.results, "--results")?;
-    figure(&o.results.join("optimisation.svg"), &curves)?;
+    super::plot::optimisation_figure(&o.results.join("optimisation.svg"), &curves)?;
     crate::util::write_atomic(&o.results.join("optimisation.csv"), csv.as_bytes())?;
     let md = page(o, &results);
     crate::util::write_atomic(&o.results.join("optimisation.md"), md.as_bytes())?;
@@ -533,7 +454,7 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
     let _ = writeln!(s, "Machine: {}.\n", machine());
     let _ = writeln!(
         s,
-        "Each task is one skill scene. Every method starts seed k from the same Θ_init and gets the compute of {b} forward rollouts per seed: random search, CMA-ES and SAC run {b} forward rollouts; grad and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up; the hybrid spends half its budget on Sobol points and the rest on trust-region steps along the adjoint gradient. \
+        "Each task is one skill scene. Every method starts seed k from the same Θ_init and gets the compute of {b} forward rollouts per seed: random search, CMA-ES and SAC run {b} forward rollouts; grad, carry and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up; the hybrid spends half its budget on Sobol points and the rest on trust-region steps along the adjoint gradient; carry is grad whose first half descends the spoon's soft carried mass against the target (at the end of the lift and of the transport) instead of the scene's loss. The curriculum of grad, carry and smoothed frees θ_t and θ_p after half of each method's rollouts. \
 A method's score after some compute is the dose error |target − delivered| of its rollout of lowest loss so far. **Equal compute** reads every method at each seed's smallest spend of simulated particle-substeps over the methods; **equal rollouts** reads every method after the fewest rollouts any method ran. p is the one-sided exact Wilcoxon signed-rank p-value, over the paired seeds, that the method's dose error at equal compute is smaller than the baseline's (ties dropped); a verdict needs p < {ALPHA}. Run time per seed is one core's share (two rollouts run side by side).\n",
         b = o.budget,
         c = crate::optim::report::BACKWARD_COST,

@@ -1,5 +1,7 @@
-//! `error_vs_time.svg`: error against wall time, log–log, one panel per case and quantity, the
-//! sweeps in colour and the Pareto front as a black line.
+//! The studies' figures. `error_vs_time.svg`: error against wall time, log–log, one panel per
+//! case and quantity, the sweeps in colour and the Pareto front as a black line.
+//! `optimisation.svg` ([`optimisation_figure`]): each task's median best dose error against
+//! compute and against rollouts.
 
 use super::{Case, Row, Sweep};
 use crate::util::write_atomic;
@@ -269,4 +271,85 @@ mod tests {
         let at = emptiest_corner(&pts, (0.1, 100.0), (0.0005, 1.0));
         assert!(matches!(at, SeriesLabelPosition::UpperRight), "{at:?}");
     }
+}
+
+/// A task's curves, for the figure.
+pub struct Curves {
+    pub title: String,
+    pub unit: String,
+    pub by_compute: std::collections::BTreeMap<crate::optim::Method, Vec<(f64, f64)>>,
+    pub by_rollouts: std::collections::BTreeMap<crate::optim::Method, Vec<(f64, f64)>>,
+}
+
+/// `optimisation.svg`: per task, the median best-so-far dose error against particle-substeps
+/// (left) and against rollouts (right), log scale.
+pub fn optimisation_figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::Result<()> {
+    use crate::optim::plot::colour;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (1100, 380 * tasks.len().max(1) as u32))
+            .into_drawing_area();
+        root.fill(&WHITE)?;
+        let rows = root.split_evenly((tasks.len().max(1), 2));
+        for (i, t) in tasks.iter().enumerate() {
+            for (j, (curves, xdesc)) in [
+                (&t.by_compute, "particle-substeps per seed (G)"),
+                (&t.by_rollouts, "rollouts per seed"),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                let area = &rows[2 * i + j];
+                let xs = if j == 0 { 1e-9 } else { 1.0 };
+                let x_hi = curves
+                    .values()
+                    .flatten()
+                    .map(|p| p.0 * xs)
+                    .fold(1.0, f64::max);
+                let ys: Vec<f64> = curves
+                    .values()
+                    .flatten()
+                    .map(|p| p.1)
+                    .filter(|y| *y > 0.0)
+                    .collect();
+                let y_lo = ys.iter().copied().fold(f64::INFINITY, f64::min).min(0.01) * 0.8;
+                let y_hi = ys.iter().copied().fold(0.0, f64::max).max(0.1) * 1.25;
+                let mut chart = ChartBuilder::on(area)
+                    .caption(
+                        format!("{}: median best dose error ({})", t.title, t.unit),
+                        ("sans-serif", 14),
+                    )
+                    .margin(10)
+                    .x_label_area_size(36)
+                    .y_label_area_size(52)
+                    .build_cartesian_2d(0f64..x_hi, (y_lo..y_hi).log_scale())?;
+                chart
+                    .configure_mesh()
+                    .x_desc(xdesc)
+                    .y_desc(format!("dose error ({})", t.unit))
+                    .draw()?;
+                for (m, v) in curves {
+                    let c = colour(*m);
+                    chart
+                        .draw_series(LineSeries::new(
+                            v.iter().map(|&(x, y)| (x * xs, y.max(y_lo))),
+                            c.stroke_width(2),
+                        ))?
+                        .label(m.name())
+                        .legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
+                        });
+                }
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .position(SeriesLabelPosition::UpperRight)
+                    .draw()?;
+            }
+        }
+        root.present()?;
+    }
+    crate::util::write_atomic(path, svg.as_bytes())?;
+    Ok(())
 }
