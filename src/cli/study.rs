@@ -101,9 +101,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "optimizers" {
         return optimizers_cmd(a);
     }
+    if a.study == "directions" {
+        return directions_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape or optimizers",
+            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers or directions",
             a.study
         );
     }
@@ -364,6 +367,63 @@ fn optimizers_cmd(a: Args) -> Result<()> {
         print!("{md}");
         eprintln!(
             "{:.0} s; wrote optimisation.md, optimisation.svg and optimisation.csv to {}",
+            start.elapsed().as_secs_f64(),
+            a.results.display()
+        );
+    }
+    Ok(())
+}
+
+/// `powderlab study directions`: each loss's gradient against the dose error's secants.
+fn directions_cmd(a: Args) -> Result<()> {
+    use powderlab::study::directions;
+    let scene = a
+        .scene
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("scenes/powder_transport.ron"));
+    let sc = powderlab::scene::Scene::load(&scene)?;
+    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
+    let unit = match problem.target {
+        powderlab::scene::TargetValue::Particles(_) => "particles",
+        powderlab::scene::TargetValue::Grams(_) => "g",
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(a.threads.unwrap_or(0))
+        .build_global()
+        .context("starting the worker threads")?;
+    let landscape = a.results.join("landscape.csv");
+    let mut points = directions::default_points(Some(&landscape));
+    let steps: Vec<f64> = if a.quick {
+        points.truncate(2);
+        vec![0.1]
+    } else {
+        vec![0.1, 0.05]
+    };
+    let (labels, thetas): (Vec<String>, Vec<[f64; 5]>) = points.into_iter().unzip();
+    // Three gradient rollouts, one at Θ and two per parameter and step.
+    let n = thetas.len() * (4 + 10 * steps.len());
+    let pb = super::bar(n as u64, a.json);
+    let dir = a.out.join("directions");
+    let start = Instant::now();
+    let done = directions::run(&problem, &thetas, &steps, &dir, &|| pb.inc(1))?;
+    pb.finish_and_clear();
+    let rows = directions::rows(&labels, &thetas, &steps, &done)?;
+    let command = format!(
+        "powderlab study directions --scene {}{}",
+        scene.display(),
+        if a.quick { " --quick" } else { "" }
+    );
+    let md = directions::report(&rows, &steps, &command, unit);
+    directions::write(&rows, &md, &a.results)?;
+    if a.json {
+        println!(
+            "{}",
+            json!({ "wall_s": start.elapsed().as_secs_f64(), "markdown": md })
+        );
+    } else {
+        print!("{md}");
+        eprintln!(
+            "{:.0} s; wrote directions.md and directions.csv to {}",
             start.elapsed().as_secs_f64(),
             a.results.display()
         );

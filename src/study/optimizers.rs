@@ -327,7 +327,7 @@ pub struct StudyOptions {
 }
 
 /// The processor's name and the worker threads, for the page's header.
-fn machine() -> String {
+pub fn machine() -> String {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|t| {
