@@ -61,6 +61,10 @@ pub struct Args {
     /// The smoothed method's noise on Θ (standard deviation).
     #[arg(long, default_value_t = 0.05)]
     smooth_sigma: f64,
+    /// The smoothed method's noise on the powder's initial positions, as a fraction of the
+    /// particle spacing (seed B's initial-state noise; 0 = Θ's noise only).
+    #[arg(long, default_value_t = 0.0)]
+    smooth_packing: f64,
     /// Give every method the compute of --epochs forward rollouts: grad and smoothed run
     /// --epochs/(1 + backward cost) gradient rollouts. The hybrid always counts this way.
     #[arg(long)]
@@ -93,6 +97,7 @@ pub fn run(args: Args) -> Result<()> {
         sac_updates,
         smooth_samples,
         smooth_sigma,
+        smooth_packing,
         equal_compute,
         budget_mb,
         json: json_out,
@@ -136,6 +141,9 @@ pub fn run(args: Args) -> Result<()> {
             "--smooth-sigma {smooth_sigma}: expected a positive standard deviation, such as 0.05"
         );
     }
+    if !(smooth_packing >= 0.0 && smooth_packing.is_finite()) {
+        bail!("--smooth-packing {smooth_packing}: expected a fraction of the particle spacing, 0 or more, such as 0.1");
+    }
     let sc = powderlab::scene::Scene::load(&scene)?;
     let problem = optim::problem::Problem::new(sc.clone(), budget_mb << 20)?;
     let threads = threads.unwrap_or(sc.simulation.threads);
@@ -169,6 +177,7 @@ pub fn run(args: Args) -> Result<()> {
         smoothing: optim::SmoothingConfig {
             samples: smooth_samples,
             sigma: smooth_sigma,
+            packing: smooth_packing,
         },
         hybrid: optim::HybridConfig::default(),
         equal_compute,

@@ -8,8 +8,8 @@
 //! - **sac**: soft actor-critic over Θ, one rollout per episode, reward `−L` ([`sac`]).
 //! - **random**: Θ_init, then uniform draws in [−1, 1]⁵.
 //! - **smoothed** (not the paper's; by name only, not in the default set): seed B's smoothed
-//!   gradient ([`smoothing`]). Each step runs `K` gradient rollouts at `Θ + σξ_k` (Θ's noise
-//!   only; the powder's packing is the scene's), and RMSprop with the paper's settings and
+//!   gradient ([`smoothing`]). Each step runs `K` gradient rollouts at `Θ + σξ_k` (and, with
+//!   `--smooth-packing`, each on its own packing of the powder), and RMSprop with the paper's settings and
 //!   curriculum takes the α-order estimate. With the same rollouts per seed it takes `K` times
 //!   fewer steps; the curriculum frees θ_t and θ_p after the same number of rollouts as grad.
 //! - **hybrid** (not the paper's; by name only): Sobol points first, then trust-region steps
@@ -188,6 +188,11 @@ pub struct SmoothingConfig {
     pub samples: usize,
     /// Standard deviation of the noise on Θ. Default 0.05 (an RMSprop step is about 0.16).
     pub sigma: f64,
+    /// Standard deviation of the noise on the powder's initial positions, as a fraction of
+    /// the particle spacing (seed B's initial-state noise; [`problem::Problem::simulation_repacked`]).
+    /// Default 0: Θ's noise only.
+    #[serde(default)]
+    pub packing: f64,
 }
 
 impl Default for SmoothingConfig {
@@ -195,6 +200,7 @@ impl Default for SmoothingConfig {
         Self {
             samples: 4,
             sigma: 0.05,
+            packing: 0.0,
         }
     }
 }

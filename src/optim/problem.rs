@@ -139,6 +139,59 @@ impl Problem {
         )?)
     }
 
+    /// Θ's simulation with another packing of the same powder: every particle's start position
+    /// moved by `frac` of its body's particle spacing times a standard normal draw per axis,
+    /// from a generator seeded with `seed` (bodies in scene order, particles in order, so the
+    /// packing does not depend on the threads). Seed B's smoothing perturbs the initial state
+    /// as well as the actions; this is its initial-state noise. `frac = 0` is the scene's own
+    /// packing, bit for bit. The particle-collision stage projects any particle moved into a
+    /// wall back out at the first substep.
+    pub fn simulation_repacked(
+        &self,
+        theta: [f64; 5],
+        shared_pool: bool,
+        frac: f64,
+        seed: u64,
+    ) -> anyhow::Result<Simulation> {
+        let mut sim = self.simulation(theta, shared_pool)?;
+        if frac == 0.0 {
+            return Ok(sim);
+        }
+        let spacing: Vec<f64> = self
+            .scene
+            .bodies
+            .iter()
+            .map(|b| self.scene.particle_spacing(b))
+            .collect();
+        let mut rng = crate::util::SplitMix64(seed);
+        let mut q = sim
+            .world
+            .query::<(&crate::components::Body, &mut crate::components::Position)>();
+        let mut bodies: Vec<_> = q.iter_mut(&mut sim.world).collect();
+        bodies.sort_by_key(|(b, _)| b.index);
+        for (b, mut x) in bodies {
+            let h = frac * spacing[b.index];
+            for p in x.0.iter_mut() {
+                *p += glam::DVec3::new(rng.normal(), rng.normal(), rng.normal()) * h;
+            }
+        }
+        Ok(sim)
+    }
+
+    /// [`Problem::evaluate`] with the gradient, on another packing of the powder
+    /// ([`Problem::simulation_repacked`]).
+    pub fn evaluate_repacked(
+        &self,
+        theta: [f64; 5],
+        shared_pool: bool,
+        frac: f64,
+        seed: u64,
+    ) -> anyhow::Result<Outcome> {
+        let t0 = Instant::now();
+        let sim = self.simulation_repacked(theta, shared_pool, frac, seed)?;
+        self.finish(sim, theta, true, t0)
+    }
+
     /// Transported amount and indicator of the simulation's current state.
     pub fn indicator(&self, sim: &mut Simulation) -> (f64, f64) {
         let task = self.scene.task.as_ref().expect("checked in Problem::new");
@@ -276,7 +329,19 @@ impl Problem {
         shared_pool: bool,
     ) -> anyhow::Result<Outcome> {
         let t0 = Instant::now();
-        let mut sim = self.simulation(theta, shared_pool)?;
+        let sim = self.simulation(theta, shared_pool)?;
+        self.finish(sim, theta, with_grad, t0)
+    }
+
+    /// Runs a fresh simulation of Θ through its horizon (with the backward pass if asked) and
+    /// scores it; `t0` is when the rollout started.
+    fn finish(
+        &self,
+        mut sim: Simulation,
+        theta: [f64; 5],
+        with_grad: bool,
+        t0: Instant,
+    ) -> anyhow::Result<Outcome> {
         let steps = sim.horizon;
         let substeps = sim.params().substeps;
         let particles = sim.particle_count();

@@ -54,12 +54,15 @@ impl Board {
 }
 
 /// What a rollout computes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) enum Pass {
     /// The forward pass only.
     Forward,
     /// The gradient of the scene's loss.
     Gradient,
+    /// The gradient of the scene's loss on another packing of the powder
+    /// ([`super::problem::Problem::simulation_repacked`]).
+    Repacked { frac: f64, seed: u64 },
     /// The gradient of the carry terms ([`super::problem::Problem::carry_terms`]); the loss
     /// reported is still the scene's.
     Carry,
@@ -92,6 +95,9 @@ impl Runner<'_> {
                 let o = match pass {
                     Pass::Forward => self.problem.evaluate(theta, false, true)?,
                     Pass::Gradient => self.problem.evaluate(theta, true, true)?,
+                    Pass::Repacked { frac, seed } => {
+                        self.problem.evaluate_repacked(theta, true, frac, seed)?
+                    }
                     Pass::Carry => self.problem.evaluate_carry(theta, true)?.0,
                 };
                 let r = Record {
@@ -178,7 +184,21 @@ impl Runner<'_> {
                 .collect();
             let recs: Vec<Record> = jobs
                 .par_iter()
-                .map(|&(k, t, _)| self.rollout(Method::Smoothed, k, step - 1, t, Pass::Gradient))
+                .enumerate()
+                .map(|(i, &(k, t, _))| {
+                    // Sample j of seed k's step has a packing of its own (the jobs hold each
+                    // seed's n samples in a row).
+                    let pass = if s.smoothing.packing > 0.0 {
+                        Pass::Repacked {
+                            frac: s.smoothing.packing,
+                            seed: method_seed(Method::Smoothed, k)
+                                ^ (((step * n + i % n) as u64) << 40),
+                        }
+                    } else {
+                        Pass::Gradient
+                    };
+                    self.rollout(Method::Smoothed, k, step - 1, t, pass)
+                })
                 .collect::<anyhow::Result<_>>()?;
             for (k, st) in states.iter_mut().enumerate() {
                 let samples: Vec<smoothing::Sample> = jobs

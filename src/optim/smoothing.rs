@@ -1,7 +1,9 @@
 //! Seed B's smoothed gradient (Diff-LfD, its eq. 6): the gradient of the loss smoothed by
 //! Gaussian noise, `∇E_ξ[L(Θ + σξ)]`, estimated from `K` rollouts at `Θ + σξ_k`. The
-//! estimates below take any such samples; `optimize --method smoothed` perturbs Θ only (seed B
-//! also perturbs the initial state, which is not built yet).
+//! estimates below take any such samples; `optimize --method smoothed` perturbs Θ, and with
+//! `--smooth-packing f` also the initial state as seed B does: each sample runs on its own
+//! packing of the powder, every particle moved by `f` spacings times a normal draw per axis
+//! (`Problem::simulation_repacked`).
 //!
 //! From the same `K` samples, three estimates:
 //! - **first order**: the adjoint gradients, aggregated robustly. A single spilled grain gives an
