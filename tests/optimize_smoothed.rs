@@ -87,7 +87,10 @@ fn a_repacked_rollout_moves_the_powder_a_fraction_of_a_spacing_and_is_reproducib
         / a.len() as f64)
         .sqrt();
     let expected = 0.1 * 3f64.sqrt() * spacing;
-    assert!((rms / expected - 1.0).abs() < 0.1, "{rms} against {expected}");
+    assert!(
+        (rms / expected - 1.0).abs() < 0.1,
+        "{rms} against {expected}"
+    );
     let o = p.evaluate_repacked(theta, false, 0.1, 7).unwrap();
     assert!(o.loss.is_finite() && o.grad.unwrap().iter().all(|g| g.is_finite()));
     assert_eq!(o, {

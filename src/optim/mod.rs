@@ -46,6 +46,7 @@ pub mod hybrid;
 pub mod journal;
 pub mod plot;
 pub mod problem;
+pub mod refine;
 pub mod report;
 pub mod rmsprop;
 mod runner;

@@ -113,6 +113,17 @@ impl Problem {
     /// Builds the simulation of Θ from the scene built once: only the tool's controls are new.
     /// `shared_pool` runs it in the caller's rayon pool.
     pub fn simulation(&self, theta: [f64; 5], shared_pool: bool) -> anyhow::Result<Simulation> {
+        self.simulation_with(theta, shared_pool, |_, _| {})
+    }
+
+    /// [`Problem::simulation`] with the skill's per-step controls edited by `edit` (given them
+    /// and the steps of each phase) before the world is built.
+    pub fn simulation_with(
+        &self,
+        theta: [f64; 5],
+        shared_pool: bool,
+        edit: impl FnOnce(&mut Vec<[f64; 6]>, [usize; 6]),
+    ) -> anyhow::Result<Simulation> {
         let scene = self.scene_at(theta);
         let tool = &scene.colliders[self.tool];
         let Some(ControlSpec::Skill(sk)) = &tool.control else {
@@ -128,7 +139,8 @@ impl Problem {
                 e.expected
             )
         })?;
-        let controls = sk.controls(scene.simulation.dt, Scene::tool_bottom(tool)).0;
+        let (mut controls, phases) = sk.controls(scene.simulation.dt, Scene::tool_bottom(tool));
+        edit(&mut controls, phases);
         let build = self.build.with_controls(&scene, self.tool, controls)?;
         Ok(build.simulation(
             scene,
@@ -137,6 +149,73 @@ impl Problem {
                 ..Default::default()
             },
         )?)
+    }
+
+    /// The residual of `knots` knots per channel on Θ's transport and pour
+    /// ([`crate::optim::refine`]).
+    pub fn residual(&self, theta: [f64; 5], knots: usize) -> crate::optim::refine::Residual {
+        let scene = self.scene_at(theta);
+        let tool = &scene.colliders[self.tool];
+        let Some(ControlSpec::Skill(sk)) = &tool.control else {
+            unreachable!("checked in Problem::new")
+        };
+        let dt = scene.simulation.dt;
+        let (_, phases) = sk.controls(dt, Scene::tool_bottom(tool));
+        let (v, w) = (
+            0.5 * sk.linear_speed * dt,
+            0.5 * sk.angular_speed_deg.to_radians() * dt,
+        );
+        crate::optim::refine::Residual {
+            knots: knots.max(1),
+            start: phases[0] + phases[1] + phases[2],
+            len: (phases[3] + phases[4]).max(1),
+            scale: [v, v, v, w, w, w],
+        }
+    }
+
+    /// One rollout of Θ with the residual `w` added to its controls, and `∂L/∂w` if asked.
+    pub fn evaluate_residual(
+        &self,
+        theta: [f64; 5],
+        residual: &crate::optim::refine::Residual,
+        w: &[f64],
+        with_grad: bool,
+        shared_pool: bool,
+    ) -> anyhow::Result<(Outcome, Option<Vec<f64>>)> {
+        let t0 = Instant::now();
+        let mut sim = self.simulation_with(theta, shared_pool, |u, _| residual.apply(u, w))?;
+        let steps = sim.horizon;
+        let (substeps, particles) = (sim.params().substeps, sim.particle_count());
+        let (loss, grad) = if with_grad {
+            let g = gradient_with(
+                &mut sim,
+                steps,
+                &self.loss,
+                &[],
+                Tape::Budget(self.tape_budget),
+            )?;
+            let name = sim.scene.colliders[self.tool].name.clone();
+            let g_u = g.tool_controls(&name).expect("the skill tool has controls");
+            (g.loss, Some(residual.apply_adj(g_u)))
+        } else {
+            sim.run(steps, |_| {})?;
+            let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
+            (self.loss.eval(&xs).0, None)
+        };
+        let (transported, indicator) = self.indicator(&mut sim);
+        Ok((
+            Outcome {
+                loss,
+                indicator,
+                transported,
+                grad: None,
+                steps,
+                substeps,
+                particles,
+                wall_s: t0.elapsed().as_secs_f64(),
+            },
+            grad,
+        ))
     }
 
     /// Θ's simulation with another packing of the same powder: every particle's start position
