@@ -42,7 +42,10 @@ pub struct Args {
     /// optimizers: the methods (comma separated, or all).
     #[arg(long, value_delimiter = ',', default_value = "all")]
     method: Vec<String>,
-    /// optimizers: where optimisation.md, .svg and .csv go.
+    /// refine: knots per control channel of each dimension tried (6 parameters per knot).
+    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 5, 16])]
+    knots: Vec<usize>,
+    /// optimizers, refine, directions: where the page goes.
     #[arg(long, default_value = "docs/results")]
     results: PathBuf,
     /// Keep the configurations already finished in OUT/results.json.
@@ -104,9 +107,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "directions" {
         return directions_cmd(a);
     }
+    if a.study == "refine" {
+        return refine_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers or directions",
+            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions or refine",
             a.study
         );
     }
@@ -424,6 +430,64 @@ fn directions_cmd(a: Args) -> Result<()> {
         print!("{md}");
         eprintln!(
             "{:.0} s; wrote directions.md and directions.csv to {}",
+            start.elapsed().as_secs_f64(),
+            a.results.display()
+        );
+    }
+    Ok(())
+}
+
+/// `powderlab study refine`: trajectory refinement by dimension, the adjoint against CMA-ES
+/// and random search at equal compute.
+fn refine_cmd(a: Args) -> Result<()> {
+    use powderlab::study::refine;
+    let scene = a
+        .scene
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("scenes/precise_dosing.ron"));
+    if a.knots.is_empty() || a.knots.contains(&0) || a.seeds == 0 || a.budget == 0 {
+        bail!("study refine: --knots, --seeds and --budget must be at least 1");
+    }
+    let sc = powderlab::scene::Scene::load(&scene)?;
+    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
+    let unit = match problem.target {
+        powderlab::scene::TargetValue::Particles(_) => "particles",
+        powderlab::scene::TargetValue::Grams(_) => "g",
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(a.threads.unwrap_or(0))
+        .build_global()
+        .context("starting the worker threads")?;
+    let per_seed = 2 * a.budget + (a.budget as f64 / 3.4).ceil() as usize;
+    let pb = super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.json);
+    let pb2 = pb.clone();
+    let store = refine::Store::open(&a.out.join("refine"), Box::new(move || pb2.inc(1)))?;
+    let start = Instant::now();
+    let cells = refine::run(&problem, &a.knots, a.seeds, a.budget, &store)?;
+    pb.finish_and_clear();
+    let command = format!(
+        "powderlab study refine --scene {} --knots {} --seeds {} --budget {}",
+        scene.display(),
+        a.knots
+            .iter()
+            .map(|k| k.to_string())
+            .collect::<Vec<_>>()
+            .join(","),
+        a.seeds,
+        a.budget
+    );
+    let md = refine::report(&cells, &command, unit, a.budget);
+    powderlab::util::create_output_dir(&a.results, "--results")?;
+    powderlab::util::write_atomic(&a.results.join("refinement.md"), md.as_bytes())?;
+    if a.json {
+        println!(
+            "{}",
+            json!({ "wall_s": start.elapsed().as_secs_f64(), "cells": cells, "markdown": md })
+        );
+    } else {
+        print!("{md}");
+        eprintln!(
+            "{:.0} s; wrote refinement.md to {}",
             start.elapsed().as_secs_f64(),
             a.results.display()
         );

@@ -25,6 +25,7 @@ pub mod growth;
 pub mod landscape;
 pub mod optimizers;
 pub mod plot;
+pub mod refine;
 
 pub use analysis::*;
 
