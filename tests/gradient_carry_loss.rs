@@ -94,7 +94,7 @@ fn carry_loss_gradient_through_the_spoon_matches_central_differences() {
         theta_g.iter().any(|x| x.abs() > 0.0),
         "no gradient reaches Θ"
     );
-    for k in 0..3 {
+    for (k, &ad) in theta_g.iter().enumerate().take(3) {
         let edit = |d: f64| {
             let mut s = scene.clone();
             if let Some(ControlSpec::Skill(sk)) = &mut s.colliders[1].control {
@@ -103,7 +103,6 @@ fn carry_loss_gradient_through_the_spoon_matches_central_differences() {
             value(&s)
         };
         let fd = (edit(EPS) - edit(-EPS)) / (2.0 * EPS);
-        let ad = theta_g[k];
         let rel = (fd - ad).abs() / fd.abs().max(ad.abs()).max(1e-12);
         println!(
             "dL/dtheta[{k}]: adjoint {ad:.9e}, central difference {fd:.9e}, relative {rel:.2e}"

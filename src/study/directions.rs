@@ -181,7 +181,7 @@ pub fn run(
             }
         }
     }
-    jobs.sort_by(|a, b| key(a.0, &a.1).cmp(&key(b.0, &b.1)));
+    jobs.sort_by_key(|a| key(a.0, &a.1));
     jobs.dedup();
     jobs.retain(|(k, t)| !done.contains_key(&key(*k, t)));
     let file = std::sync::Mutex::new(

@@ -254,25 +254,6 @@ fn emptiest_corner(pts: &[(f64, f64)], x: (f64, f64), y: (f64, f64)) -> SeriesLa
         .map_or(SeriesLabelPosition::LowerLeft, |c| c.0)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_legend_goes_to_a_corner_without_points() {
-        // Errors falling with time: points upper left and lower right; plus one lower left.
-        let pts = [
-            (0.2, 0.5),
-            (0.3, 0.4),
-            (50.0, 0.002),
-            (80.0, 0.001),
-            (0.2, 0.002),
-        ];
-        let at = emptiest_corner(&pts, (0.1, 100.0), (0.0005, 1.0));
-        assert!(matches!(at, SeriesLabelPosition::UpperRight), "{at:?}");
-    }
-}
-
 /// A task's curves, for the figure.
 pub struct Curves {
     pub title: String,
@@ -352,4 +333,23 @@ pub fn optimisation_figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::
     }
     crate::util::write_atomic(path, svg.as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_legend_goes_to_a_corner_without_points() {
+        // Errors falling with time: points upper left and lower right; plus one lower left.
+        let pts = [
+            (0.2, 0.5),
+            (0.3, 0.4),
+            (50.0, 0.002),
+            (80.0, 0.001),
+            (0.2, 0.002),
+        ];
+        let at = emptiest_corner(&pts, (0.1, 100.0), (0.0005, 1.0));
+        assert!(matches!(at, SeriesLabelPosition::UpperRight), "{at:?}");
+    }
 }
