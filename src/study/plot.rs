@@ -286,7 +286,8 @@ pub fn optimisation_figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::
                     .values()
                     .flatten()
                     .map(|p| p.0 * xs)
-                    .fold(1.0, f64::max);
+                    .fold(0.0, f64::max);
+                let x_hi = if x_hi > 0.0 { x_hi } else { 1.0 };
                 let ys: Vec<f64> = curves
                     .values()
                     .flatten()
