@@ -19,6 +19,7 @@
 
 use glam::DVec3;
 
+use crate::math::geometry::logistic;
 pub use crate::math::geometry::CupRegion;
 use crate::scene::{LossSpec, Scene};
 
@@ -220,15 +221,6 @@ pub fn soft_ball(
     // ∂s/∂q = −σ'(z)/ε · q/‖q‖, and ∂q/∂x = Rᵀ, so ∂s/∂x = R·∂s/∂q.
     let g_local = q * (-s * (1.0 - s) / (width * d));
     (s, pose.rotation * g_local)
-}
-
-fn logistic(z: f64) -> f64 {
-    if z >= 0.0 {
-        1.0 / (1.0 + (-z).exp())
-    } else {
-        let e = z.exp();
-        e / (1.0 + e)
-    }
 }
 
 impl Carry {

@@ -383,20 +383,7 @@ fn optimizers_cmd(a: Args) -> Result<()> {
 /// `powderlab study directions`: each loss's gradient against the dose error's secants.
 fn directions_cmd(a: Args) -> Result<()> {
     use powderlab::study::directions;
-    let scene = a
-        .scene
-        .clone()
-        .unwrap_or_else(|| PathBuf::from("scenes/powder_transport.ron"));
-    let sc = powderlab::scene::Scene::load(&scene)?;
-    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
-    let unit = match problem.target {
-        powderlab::scene::TargetValue::Particles(_) => "particles",
-        powderlab::scene::TargetValue::Grams(_) => "g",
-    };
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(a.threads.unwrap_or(0))
-        .build_global()
-        .context("starting the worker threads")?;
+    let (scene, problem, unit) = skill_problem(&a, "scenes/powder_transport.ron")?;
     let landscape = a.results.join("landscape.csv");
     let mut points = directions::default_points(Some(&landscape));
     let steps: Vec<f64> = if a.quick {
@@ -441,23 +428,10 @@ fn directions_cmd(a: Args) -> Result<()> {
 /// and random search at equal compute.
 fn refine_cmd(a: Args) -> Result<()> {
     use powderlab::study::refine;
-    let scene = a
-        .scene
-        .clone()
-        .unwrap_or_else(|| PathBuf::from("scenes/precise_dosing.ron"));
     if a.knots.is_empty() || a.knots.contains(&0) || a.seeds == 0 || a.budget == 0 {
         bail!("study refine: --knots, --seeds and --budget must be at least 1");
     }
-    let sc = powderlab::scene::Scene::load(&scene)?;
-    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
-    let unit = match problem.target {
-        powderlab::scene::TargetValue::Particles(_) => "particles",
-        powderlab::scene::TargetValue::Grams(_) => "g",
-    };
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(a.threads.unwrap_or(0))
-        .build_global()
-        .context("starting the worker threads")?;
+    let (scene, problem, unit) = skill_problem(&a, "scenes/precise_dosing.ron")?;
     let per_seed = 2 * a.budget + (a.budget as f64 / 3.4).ceil() as usize;
     let pb = super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.json);
     let pb2 = pb.clone();
@@ -493,4 +467,24 @@ fn refine_cmd(a: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+/// The skill problem of `--scene` (else `default`), its indicator's unit, and the worker pool
+/// of `--threads` (default all cores) started.
+fn skill_problem(
+    a: &Args,
+    default: &str,
+) -> Result<(PathBuf, powderlab::optim::problem::Problem, &'static str)> {
+    let scene = a.scene.clone().unwrap_or_else(|| PathBuf::from(default));
+    let sc = powderlab::scene::Scene::load(&scene)?;
+    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
+    let unit = match problem.target {
+        powderlab::scene::TargetValue::Particles(_) => "particles",
+        powderlab::scene::TargetValue::Grams(_) => "g",
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(a.threads.unwrap_or(0))
+        .build_global()
+        .context("starting the worker threads")?;
+    Ok((scene, problem, unit))
 }

@@ -15,8 +15,9 @@ pub struct CupRegion {
     pub rim: f64,
 }
 
+/// The logistic function `1/(1 + e^(−z))`.
 #[inline(always)]
-fn logistic(z: f64) -> f64 {
+pub fn logistic(z: f64) -> f64 {
     // Written so neither branch overflows: exp of a non-positive number only.
     if z >= 0.0 {
         1.0 / (1.0 + (-z).exp())

@@ -185,7 +185,6 @@ impl Problem {
         let t0 = Instant::now();
         let mut sim = self.simulation_with(theta, shared_pool, |u, _| residual.apply(u, w))?;
         let steps = sim.horizon;
-        let (substeps, particles) = (sim.params().substeps, sim.particle_count());
         let (loss, grad) = if with_grad {
             let g = gradient_with(
                 &mut sim,
@@ -202,20 +201,7 @@ impl Problem {
             let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
             (self.loss.eval(&xs).0, None)
         };
-        let (transported, indicator) = self.indicator(&mut sim);
-        Ok((
-            Outcome {
-                loss,
-                indicator,
-                transported,
-                grad: None,
-                steps,
-                substeps,
-                particles,
-                wall_s: t0.elapsed().as_secs_f64(),
-            },
-            grad,
-        ))
+        Ok((self.outcome(&mut sim, loss, None, t0), grad))
     }
 
     /// Θ's simulation with another packing of the same powder: every particle's start position
@@ -370,9 +356,6 @@ impl Problem {
             .carry_terms(theta)
             .context("the carry loss needs a spoon tool (a ball about its bowl)")?;
         let mut sim = self.simulation(theta, shared_pool)?;
-        let steps = sim.horizon;
-        let substeps = sim.params().substeps;
-        let particles = sim.particle_count();
         let nothing = Loss::Linear(
             sim.body_states()
                 .iter()
@@ -384,20 +367,28 @@ impl Problem {
             .with_context(|| format!("rollout at Θ = {theta:?}"))?;
         let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
         let loss = self.loss.eval(&xs).0;
-        let (transported, indicator) = self.indicator(&mut sim);
-        Ok((
-            Outcome {
-                loss,
-                indicator,
-                transported,
-                grad: Some(grad),
-                steps,
-                substeps,
-                particles,
-                wall_s: t0.elapsed().as_secs_f64(),
-            },
-            carried,
-        ))
+        Ok((self.outcome(&mut sim, loss, Some(grad), t0), carried))
+    }
+
+    /// What a finished rollout gives: its score in the final state of `sim`.
+    fn outcome(
+        &self,
+        sim: &mut Simulation,
+        loss: f64,
+        grad: Option<[f64; 5]>,
+        t0: Instant,
+    ) -> Outcome {
+        let (transported, indicator) = self.indicator(sim);
+        Outcome {
+            loss,
+            indicator,
+            transported,
+            grad,
+            steps: sim.horizon,
+            substeps: sim.params().substeps,
+            particles: sim.particle_count(),
+            wall_s: t0.elapsed().as_secs_f64(),
+        }
     }
 
     /// One rollout at Θ (clamped to [−1, 1] by the caller), with the gradient if asked.
@@ -422,8 +413,6 @@ impl Problem {
         t0: Instant,
     ) -> anyhow::Result<Outcome> {
         let steps = sim.horizon;
-        let substeps = sim.params().substeps;
-        let particles = sim.particle_count();
         let context = || format!("rollout at Θ = {theta:?}");
         let (loss, grad) = if with_grad {
             let (loss, g) = self
@@ -435,16 +424,6 @@ impl Problem {
             let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
             (self.loss.eval(&xs).0, None)
         };
-        let (transported, indicator) = self.indicator(&mut sim);
-        Ok(Outcome {
-            loss,
-            indicator,
-            transported,
-            grad,
-            steps,
-            substeps,
-            particles,
-            wall_s: t0.elapsed().as_secs_f64(),
-        })
+        Ok(self.outcome(&mut sim, loss, grad, t0))
     }
 }
