@@ -364,19 +364,13 @@ fn optimizers_cmd(a: Args) -> Result<()> {
         command,
         quiet: a.json,
     })?;
-    if a.json {
-        println!(
-            "{}",
-            json!({ "wall_s": start.elapsed().as_secs_f64(), "markdown": md })
-        );
-    } else {
-        print!("{md}");
-        eprintln!(
-            "{:.0} s; wrote optimisation.md, optimisation.svg and optimisation.csv to {}",
-            start.elapsed().as_secs_f64(),
-            a.results.display()
-        );
-    }
+    print_page(
+        &a,
+        &md,
+        start,
+        "optimisation.md, optimisation.svg and optimisation.csv",
+        json!({}),
+    );
     Ok(())
 }
 
@@ -408,19 +402,13 @@ fn directions_cmd(a: Args) -> Result<()> {
     );
     let md = directions::report(&rows, &steps, &command, unit);
     directions::write(&rows, &md, &a.results)?;
-    if a.json {
-        println!(
-            "{}",
-            json!({ "wall_s": start.elapsed().as_secs_f64(), "markdown": md })
-        );
-    } else {
-        print!("{md}");
-        eprintln!(
-            "{:.0} s; wrote directions.md and directions.csv to {}",
-            start.elapsed().as_secs_f64(),
-            a.results.display()
-        );
-    }
+    print_page(
+        &a,
+        &md,
+        start,
+        "directions.md and directions.csv",
+        json!({}),
+    );
     Ok(())
 }
 
@@ -432,7 +420,7 @@ fn refine_cmd(a: Args) -> Result<()> {
         bail!("study refine: --knots, --seeds and --budget must be at least 1");
     }
     let (scene, problem, unit) = skill_problem(&a, "scenes/precise_dosing.ron")?;
-    let per_seed = 2 * a.budget + (a.budget as f64 / 3.4).ceil() as usize;
+    let per_seed = 2 * a.budget + refine::gradient_rollouts(a.budget);
     let pb = super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.json);
     let pb2 = pb.clone();
     let store = refine::Store::open(&a.out.join("refine"), Box::new(move || pb2.inc(1)))?;
@@ -453,19 +441,7 @@ fn refine_cmd(a: Args) -> Result<()> {
     let md = refine::report(&cells, &command, unit, a.budget);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("refinement.md"), md.as_bytes())?;
-    if a.json {
-        println!(
-            "{}",
-            json!({ "wall_s": start.elapsed().as_secs_f64(), "cells": cells, "markdown": md })
-        );
-    } else {
-        print!("{md}");
-        eprintln!(
-            "{:.0} s; wrote refinement.md to {}",
-            start.elapsed().as_secs_f64(),
-            a.results.display()
-        );
-    }
+    print_page(&a, &md, start, "refinement.md", json!({ "cells": cells }));
     Ok(())
 }
 
@@ -487,4 +463,20 @@ fn skill_problem(
         .build_global()
         .context("starting the worker threads")?;
     Ok((scene, problem, unit))
+}
+
+/// Prints a study's page (or, with `--json`, one object: its wall time, `extra`'s fields and
+/// the page) and says what was written where.
+fn print_page(a: &Args, md: &str, start: Instant, wrote: &str, extra: serde_json::Value) {
+    let wall_s = start.elapsed().as_secs_f64();
+    if a.json {
+        let mut o = json!({ "wall_s": wall_s, "markdown": md });
+        if let (Some(o), Some(e)) = (o.as_object_mut(), extra.as_object()) {
+            o.extend(e.clone());
+        }
+        println!("{o}");
+    } else {
+        print!("{md}");
+        eprintln!("{wall_s:.0} s; wrote {wrote} to {}", a.results.display());
+    }
 }

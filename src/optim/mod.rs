@@ -160,7 +160,7 @@ impl Settings {
         if !(self.equal_compute && method.all_gradient()) {
             return self.epochs;
         }
-        let n = (self.epochs as f64 / (1.0 + report::BACKWARD_COST)).ceil() as usize;
+        let n = report::gradient_rollouts(self.epochs);
         match method {
             Method::Smoothed => {
                 let k = self.smoothing.samples.max(2);

@@ -30,6 +30,11 @@ pub fn sort_rollouts(list: &mut [Record]) {
 /// 2 cores, `docs/results/performance.md`).
 pub const BACKWARD_COST: f64 = 2.4;
 
+/// The gradient rollouts (rounded up) that cost the compute of `budget` forward rollouts.
+pub fn gradient_rollouts(budget: usize) -> usize {
+    (budget as f64 / (1.0 + BACKWARD_COST)).ceil() as usize
+}
+
 /// What a rollout costs in simulated particle-substeps, its backward pass (if it has one) at
 /// [`BACKWARD_COST`] times the forward's.
 pub fn rollout_cost(o: &Outcome) -> f64 {

@@ -18,6 +18,7 @@
 use super::optimizers::wilcoxon_less;
 use crate::optim::cma::reflect;
 use crate::optim::problem::Problem;
+pub use crate::optim::report::gradient_rollouts;
 use crate::optim::report::{mean_std, BACKWARD_COST};
 use crate::optim::rmsprop::median;
 use crate::optim::theta_init;
@@ -143,7 +144,7 @@ fn adam(
     budget: usize,
 ) -> anyhow::Result<Vec<Rollout>> {
     let d = 6 * knots;
-    let n = (budget as f64 / (1.0 + BACKWARD_COST)).ceil() as usize;
+    let n = gradient_rollouts(budget);
     let (b1, b2, eps) = (0.9, 0.999, 1e-8);
     let (mut w, mut m, mut v) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
     let mut out = Vec::new();
