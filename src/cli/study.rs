@@ -324,7 +324,7 @@ fn optimizers_cmd(a: Args) -> Result<()> {
     for m in &a.method {
         let Some(ms) = Method::parse_list(m) else {
             bail!(
-                "--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, paper or all"
+                "--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, paper, default or all"
             );
         };
         for m in ms {
@@ -420,7 +420,8 @@ fn refine_cmd(a: Args) -> Result<()> {
         bail!("study refine: --knots, --seeds and --budget must be at least 1");
     }
     let (scene, problem, unit) = skill_problem(&a, "scenes/precise_dosing.ron")?;
-    let per_seed = 2 * a.budget + refine::gradient_rollouts(a.budget);
+    // At most: trust's rollouts depend on its accepted steps, and never pass the budget.
+    let per_seed = 3 * a.budget + refine::gradient_rollouts(a.budget);
     let pb = super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.json);
     let pb2 = pb.clone();
     let store = refine::Store::open(&a.out.join("refine"), Box::new(move || pb2.inc(1)))?;

@@ -54,13 +54,22 @@ impl TrustRegion {
     /// The trial point `Θ − r·g/‖g‖`, clamped to [−1, 1]⁵; `None` for a zero or non-finite
     /// gradient (no direction to try).
     pub fn propose(&self, theta: [f64; 5], grad: [f64; 5]) -> Option<[f64; 5]> {
+        let t = self.propose_in(&theta, &grad)?;
+        Some(std::array::from_fn(|k| t[k]))
+    }
+
+    /// [`Self::propose`] in any dimension: `x − r·g/‖g‖`, clamped to [−1, 1]ⁿ.
+    pub fn propose_in(&self, x: &[f64], grad: &[f64]) -> Option<Vec<f64>> {
         let norm = grad.iter().map(|g| g * g).sum::<f64>().sqrt();
         if !(norm > 0.0 && norm.is_finite()) {
             return None;
         }
-        Some(std::array::from_fn(|k| {
-            (theta[k] - self.radius * grad[k] / norm).clamp(-1.0, 1.0)
-        }))
+        Some(
+            x.iter()
+                .zip(grad)
+                .map(|(x, g)| (x - self.radius * g / norm).clamp(-1.0, 1.0))
+                .collect(),
+        )
     }
 
     /// Judges a trial: accepted if its loss is below the incumbent's. Grows the radius on
