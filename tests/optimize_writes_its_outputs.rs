@@ -19,7 +19,8 @@ fn optimize_writes_metrics_summary_figure_and_recording() {
     let out = std::env::temp_dir().join(format!("powderlab-opt-{}", std::process::id()));
     let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
         .args([
-            "optimize", SCENE, "--epochs", "2", "--seeds", "1", "--json", "--out",
+            "optimize", SCENE, "--method", "paper", "--epochs", "2", "--seeds", "1", "--json",
+            "--out",
         ])
         .arg(&out)
         .output()
@@ -75,5 +76,31 @@ fn optimize_writes_metrics_summary_figure_and_recording() {
             "/metrics/optimize/random/seed0/indicator",
         ],
     );
+    std::fs::remove_dir_all(&out).ok();
+}
+
+#[test]
+fn without_method_optimize_runs_the_benchmarks_verdict_at_equal_compute() {
+    let out = std::env::temp_dir().join(format!("powderlab-opt-default-{}", std::process::id()));
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(["optimize", SCENE, "--epochs", "4", "--seeds", "1", "--json", "--out"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let mut ran: Vec<&str> = summary["methods"]
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(|k| k.as_str())
+        .collect();
+    ran.sort_unstable();
+    assert_eq!(ran, ["cmaes", "hybrid", "random", "sac"]);
+    let settings: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("settings.json")).unwrap())
+            .unwrap();
+    assert_eq!(settings["equal_compute"], true, "{settings}");
+    assert_eq!(settings["epochs"], 4, "{settings}");
     std::fs::remove_dir_all(&out).ok();
 }
