@@ -272,7 +272,8 @@ pub enum LossSpec {
     Dosing {
         /// Target mass m* (g), > 0.
         grams: f64,
-        /// Width of the soft indicator's ramps (m), > 0. Default: the particle spacing.
+        /// Width of the soft indicator's ramps (m), > 0. Default: a quarter of the particle
+        /// spacing (`crate::adjoint::loss::DOSING_WIDTH_PER_SPACING`).
         #[serde(default)]
         width: Option<f64>,
     },
