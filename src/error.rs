@@ -4,6 +4,16 @@
 use std::path::PathBuf;
 use thiserror::Error;
 
+/// A number as an error message shows it: plain between 1e-4 and 1e6, else in scientific
+/// notation (`1e300`, not its 301 digits).
+pub fn num(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e6).contains(&v.abs()) {
+        v.to_string()
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// A field whose value is out of range, before the file position is known.
 #[derive(Clone, Debug, PartialEq)]
 pub struct FieldError {
@@ -59,16 +69,19 @@ pub enum SceneError {
         value: String,
         expected: String,
     },
-    #[error("{file}: unstable time step: Δt_sub = {dt_sub:.3e} s exceeds the stable {dt_max:.3e} s ({reason}); {advice}")]
+    #[error("{file}:{line}:{col}: field `{field}`: unstable time step: Δt_sub = {dt_sub:.3e} s exceeds the stable {dt_max:.3e} s ({reason_and_advice}")]
     Unstable {
         file: PathBuf,
+        line: usize,
+        col: usize,
+        /// The field that sets the step's limit: the stiffest material, the fastest tool or
+        /// body, or `simulation.substeps` under `stability: Strict`.
+        field: String,
         dt_sub: f64,
         dt_max: f64,
-        /// Substeps per step the stable Δt_sub needs (a float: it can exceed any integer).
-        needed: f64,
-        reason: String,
-        /// What to change in the scene.
-        advice: String,
+        /// Why, a closing parenthesis, and what to change in the scene (one string, so that
+        /// the error stays small enough to return by value).
+        reason_and_advice: String,
     },
 }
 

@@ -90,10 +90,26 @@ pub fn peak_rss_bytes() -> u64 {
     proc_kb("/proc/self/status", "VmHWM:").unwrap_or(0)
 }
 
-/// Memory the kernel can give this process without swapping (`MemAvailable` of
-/// `/proc/meminfo`), or `None` where that file does not exist.
+/// Memory this process can still get: the kernel's `MemAvailable` (what it can give without
+/// swapping), and under an address-space limit (`ulimit -v`, a batch system's cap) no more
+/// than the limit less the address space already mapped, since an allocation past the limit
+/// aborts the process. `None` where neither is known.
 pub fn available_memory_bytes() -> Option<u64> {
-    proc_kb("/proc/meminfo", "MemAvailable:")
+    let physical = proc_kb("/proc/meminfo", "MemAvailable:");
+    let headroom = address_space_limit()
+        .map(|limit| limit.saturating_sub(proc_kb("/proc/self/status", "VmSize:").unwrap_or(0)));
+    match (physical, headroom) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        (a, b) => a.or(b),
+    }
+}
+
+/// The soft address-space limit of this process in bytes (`Max address space` of
+/// `/proc/self/limits`), `None` when unlimited or unknown.
+fn address_space_limit() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/limits").ok()?;
+    let l = s.lines().find(|l| l.starts_with("Max address space"))?;
+    l.split_whitespace().nth(3)?.parse().ok()
 }
 
 /// A small deterministic generator (SplitMix64, Steele et al. 2014): the lattice jitter and

@@ -243,9 +243,8 @@ fn non_finite_rotation() {
         "position: (0.11, 0.11, 0.11), rotation_deg: (0.0, NaN, 0.0)),",
     ));
     assert!(
-        msg.contains("colliders[0].rotation_deg[1]")
+        msg.contains("colliders[0].rotation_deg")
             && msg.contains("NaN")
-            && msg.contains("finite")
             && msg.contains("scenes/bad.ron:8:"),
         "{msg}"
     );
@@ -305,15 +304,31 @@ fn constant_control_too_long() {
     );
 }
 
-/// An absurd stiffness: the advice used to be "raise simulation.substeps to at least
-/// 18446744073709551615" (a saturated cast).
+/// A stiffness beyond any material is out of range, with its value in scientific notation.
 #[test]
-fn absurd_stiffness_names_the_cause() {
+fn absurd_stiffness_is_out_of_range() {
     let msg = error_of(&GOOD.replace("youngs_modulus: 2e4", "youngs_modulus: 1e300"));
     assert!(
-        msg.contains("unstable time step")
+        msg.contains("field `materials.sand.youngs_modulus` = 1e300"),
+        "{msg}"
+    );
+}
+
+/// A stiffness that needs more substeps than Auto ever takes names the material that sets the
+/// limit; the advice used to be "raise simulation.substeps to at least 18446744073709551615"
+/// (a saturated cast).
+#[test]
+fn a_step_too_stiff_for_auto_names_the_stiffest_material() {
+    let msg = error_of(
+        &GOOD
+            .replace("youngs_modulus: 2e4", "youngs_modulus: 1e13")
+            .replace("steps: Some(1)", "steps: Some(1), dt: 10.0"),
+    );
+    assert!(
+        msg.contains("field `materials.sand`")
+            && msg.contains("unstable time step")
             && msg.contains("youngs_modulus")
-            && msg.contains("e148 substeps per step")
+            && msg.contains("substeps per step")
             && !msg.contains("18446744073709551615"),
         "{msg}"
     );
@@ -379,18 +394,18 @@ fn too_many_threads_from_code() {
     Simulation::new(&s, &opts(4)).unwrap();
 }
 
-/// ron says "Integer is out of bounds" without the field; the message adds it.
+/// ron says "Integer is out of bounds" without the field; the message adds its path.
 #[test]
 fn negative_integer_names_its_field() {
     let msg = error_of(&GOOD.replace("steps: Some(1)", "steps: Some(1), substeps: -3"));
     assert!(
-        msg.contains("scenes/bad.ron:2:") && msg.contains("field `substeps`"),
+        msg.contains("scenes/bad.ron:2:") && msg.contains("field `simulation.substeps`"),
         "{msg}"
     );
-    // Inside a tuple no single field is named, and the position still is.
+    // Inside a tuple, the field that holds the tuple.
     let msg = error_of(&GOOD.replace("cells: (24, 24, 24)", "cells: (24, -24, 24)"));
     assert!(
-        msg.starts_with("scenes/bad.ron:2:") && !msg.contains("field `"),
+        msg.starts_with("scenes/bad.ron:2:") && msg.contains("field `simulation.cells`"),
         "{msg}"
     );
 }

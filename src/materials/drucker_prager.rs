@@ -2,8 +2,8 @@
 //! optional hardening. The maths is in `crate::math::return_map`.
 
 use super::{
-    check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated, POISSON_RATIO,
-    YOUNGS_MODULUS,
+    check_density_and_stiffness, check_range, material_adj, FdStep, Material, Param, Saved,
+    UpdateAdj, Updated, POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
 use crate::math::return_map::{
@@ -153,13 +153,7 @@ impl Material for DruckerPrager {
         self.hardening.is_some()
     }
     fn validate(&self) -> Result<(), FieldError> {
-        check_range("density", self.density, self.density > 0.0, "> 0 kg/m³")?;
-        check_range(
-            "youngs_modulus",
-            self.youngs_modulus,
-            self.youngs_modulus > 0.0,
-            "> 0 Pa",
-        )?;
+        check_density_and_stiffness(self.density, self.youngs_modulus)?;
         check_range(
             "poisson_ratio",
             self.poisson_ratio,

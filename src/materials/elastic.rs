@@ -1,6 +1,9 @@
 //! Elastic solid: StVK in Hencky strain, no plasticity (no return mapping runs).
 
-use super::{check_range, material_adj, Material, Param, UpdateAdj, POISSON_RATIO, YOUNGS_MODULUS};
+use super::{
+    check_density_and_stiffness, check_range, material_adj, Material, Param, UpdateAdj,
+    POISSON_RATIO, YOUNGS_MODULUS,
+};
 use crate::error::FieldError;
 use crate::math::return_map::{
     hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj, lame, lame_adj,
@@ -49,13 +52,7 @@ impl Material for Elastic {
         lame(self.youngs_modulus, self.poisson_ratio)
     }
     fn validate(&self) -> Result<(), FieldError> {
-        check_range("density", self.density, self.density > 0.0, "> 0 kg/m³")?;
-        check_range(
-            "youngs_modulus",
-            self.youngs_modulus,
-            self.youngs_modulus > 0.0,
-            "> 0 Pa",
-        )?;
+        check_density_and_stiffness(self.density, self.youngs_modulus)?;
         check_range(
             "poisson_ratio",
             self.poisson_ratio,

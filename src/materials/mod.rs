@@ -149,6 +149,29 @@ pub struct UpdateAdj {
     pub g_material: MaterialAdj,
 }
 
+/// Largest density (kg/m³): above osmium's 22,590, with room to spare.
+pub const MAX_DENSITY: f64 = 1e5;
+/// Largest Young's modulus (Pa): ten times diamond's. Stiffer materials only make the stable
+/// substep vanish.
+pub const MAX_YOUNGS_MODULUS: f64 = 1e13;
+
+/// The density and Young's modulus every material has: positive and within what a material
+/// can be.
+pub(crate) fn check_density_and_stiffness(density: f64, youngs: f64) -> Result<(), FieldError> {
+    check_range(
+        "density",
+        density,
+        density > 0.0 && density <= MAX_DENSITY,
+        &format!("in (0, {MAX_DENSITY:e}] kg/m³"),
+    )?;
+    check_range(
+        "youngs_modulus",
+        youngs,
+        youngs > 0.0 && youngs <= MAX_YOUNGS_MODULUS,
+        &format!("in (0, {MAX_YOUNGS_MODULUS:e}] Pa"),
+    )
+}
+
 /// Checks `lo <= value <= hi` (or the open variants the closure encodes) for a field.
 pub(crate) fn check_range(
     field: &'static str,
@@ -159,7 +182,7 @@ pub(crate) fn check_range(
     if ok && value.is_finite() {
         Ok(())
     } else {
-        Err(FieldError::new(field, value.to_string(), expected))
+        Err(FieldError::new(field, crate::error::num(value), expected))
     }
 }
 

@@ -15,6 +15,7 @@
 //! lab.
 
 mod fill;
+pub mod fuzz;
 pub mod parse;
 pub mod prepare;
 pub mod types;

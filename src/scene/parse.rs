@@ -8,11 +8,35 @@ impl Scene {
     /// Reads, parses and validates a scene file.
     pub fn load(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
         let path = path.as_ref();
-        let src = std::fs::read_to_string(path).map_err(|cause| SceneError::Io {
+        let bytes = std::fs::read(path).map_err(|cause| SceneError::Io {
             file: path.to_path_buf(),
             cause,
         })?;
-        Self::parse(&src, path)
+        Self::parse_bytes(&bytes, path)
+    }
+
+    /// Parses and validates the bytes of a scene file: text that is not UTF-8 is refused with
+    /// the line, column and byte offset of its first invalid byte.
+    pub fn parse_bytes(bytes: &[u8], path: &Path) -> Result<Scene, SceneError> {
+        match std::str::from_utf8(bytes) {
+            Ok(src) => Self::parse(src, path),
+            Err(e) => {
+                let at = e.valid_up_to();
+                let good = std::str::from_utf8(&bytes[..at]).expect("valid up to `at`");
+                let line = good.matches('\n').count() + 1;
+                let col = good.len() - good.rfind('\n').map_or(0, |p| p + 1) + 1;
+                Err(SceneError::Parse {
+                    file: path.to_path_buf(),
+                    line,
+                    col,
+                    message: format!(
+                        "field `{}`: byte {at} (0x{:02X}) is not UTF-8: scene files are UTF-8 text",
+                        bounded(&enclosing_field(good, at).unwrap_or_else(|| "Scene".into())),
+                        bytes[at]
+                    ),
+                })
+            }
+        }
     }
 
     /// Parses and validates scene text; `path` is used in messages.
@@ -22,16 +46,19 @@ impl Scene {
             .from_str(src)
             .map_err(|e| {
                 let (line, col) = (e.span.start.line, e.span.start.col);
-                let code = e.code.to_string();
+                // ron names the problem but not the field ("Integer is out of bounds").
+                let field = enclosing_field(src, offset_of(src, line, col))
+                    .or_else(|| field_before(src, line, col))
+                    .unwrap_or_else(|| "Scene".into());
                 SceneError::Parse {
                     file: path.to_path_buf(),
                     line,
                     col,
-                    // ron names the problem but not the field ("Integer is out of bounds").
-                    message: match field_before(src, line, col) {
-                        Some(f) if !code.contains(&f) => format!("field `{f}`: {code}"),
-                        _ => code,
-                    },
+                    message: format!(
+                        "field `{}`: {}",
+                        bounded(&field),
+                        bounded(&e.code.to_string())
+                    ),
                 }
             })?;
         scene.path = path.to_path_buf();
@@ -47,11 +74,159 @@ impl Scene {
             file: self.path.clone(),
             line,
             col,
-            field: e.field,
-            value: e.value,
-            expected: e.expected,
+            field: bounded(&e.field),
+            value: bounded(&e.value),
+            // What is expected is the program's text, with a value or a name in it at most.
+            expected: bounded_to(&e.expected, 6 * MAX_ECHO),
         }
     }
+}
+
+/// Longest name or value an error message repeats, in characters.
+pub const MAX_ECHO: usize = 80;
+
+/// `text` with every run of name characters longer than [`MAX_ECHO`] cut to its start and a
+/// count, and the whole cut at four times that: a 10 MB field name is not echoed to stderr.
+pub fn bounded(text: &str) -> String {
+    bounded_to(text, 4 * MAX_ECHO)
+}
+
+/// [`bounded`] with the whole cut at `total` characters.
+fn bounded_to(text: &str, total: usize) -> String {
+    let mut out = String::new();
+    let mut run = 0usize;
+    let mut cut = 0usize;
+    for c in text.chars() {
+        if c.is_alphanumeric() || c == '_' {
+            run += 1;
+            if run > MAX_ECHO {
+                cut += 1;
+                continue;
+            }
+        } else {
+            if cut > 0 {
+                out.push_str(&format!("… ({} characters)", run));
+                cut = 0;
+            }
+            run = 0;
+        }
+        out.push(c);
+    }
+    if cut > 0 {
+        out.push_str(&format!("… ({} characters)", run));
+    }
+    if out.chars().count() > total {
+        out = out.chars().take(total).collect::<String>() + "…";
+    }
+    out
+}
+
+/// Byte offset of 1-based `line`, `col` (in characters) in `src`, clamped to its end.
+fn offset_of(src: &str, line: usize, col: usize) -> usize {
+    let mut off = 0;
+    for (i, l) in src.split_inclusive('\n').enumerate() {
+        if i + 1 == line {
+            return off
+                + l.char_indices()
+                    .nth(col.saturating_sub(1))
+                    .map_or(l.len(), |(b, _)| b);
+        }
+        off += l.len();
+    }
+    src.len()
+}
+
+/// The dotted path of the field whose value holds byte `offset` of `src`, such as
+/// `simulation.cells` or `colliders[2].shape`: the keys (`name:` or `"name":`) of the brackets
+/// open at `offset`, with list items as `[i]`. `None` at the top level.
+pub fn enclosing_field(src: &str, offset: usize) -> Option<String> {
+    struct Frame {
+        list: bool,
+        index: usize,
+        key: Option<String>,
+    }
+    let mut frames = vec![Frame {
+        list: false,
+        index: 0,
+        key: None,
+    }];
+    let b = src.as_bytes();
+    let end = offset.min(b.len());
+    let mut i = 0;
+    // The last word or string, a key if a `:` follows it.
+    let mut word: Option<String> = None;
+    while i < end {
+        let c = b[i];
+        match c {
+            b'/' if b.get(i + 1) == Some(&b'/') => {
+                while i < end && b[i] != b'\n' {
+                    i += 1;
+                }
+                continue;
+            }
+            b'"' => {
+                let start = i + 1;
+                i += 1;
+                while i < end && b[i] != b'"' {
+                    i += if b[i] == b'\\' { 2 } else { 1 };
+                }
+                word = src.get(start..i.min(end)).map(str::to_string);
+            }
+            b':' => {
+                if let (Some(w), Some(f)) = (word.take(), frames.last_mut()) {
+                    f.key = Some(w);
+                }
+            }
+            b'(' | b'[' | b'{' => {
+                frames.push(Frame {
+                    list: c == b'[',
+                    index: 0,
+                    key: None,
+                });
+                word = None;
+            }
+            b')' | b']' | b'}' => {
+                if frames.len() > 1 {
+                    frames.pop();
+                }
+                word = None;
+            }
+            b',' => {
+                if let Some(f) = frames.last_mut() {
+                    if f.list {
+                        f.index += 1;
+                    } else {
+                        f.key = None;
+                    }
+                }
+                word = None;
+            }
+            c if c.is_ascii_alphanumeric() || c == b'_' => {
+                let start = i;
+                while i < end && (b[i].is_ascii_alphanumeric() || b[i] == b'_') {
+                    i += 1;
+                }
+                word = Some(src[start..i].to_string());
+                continue;
+            }
+            _ => {}
+        }
+        i += 1;
+    }
+    let mut path = String::new();
+    for (k, f) in frames.iter().enumerate() {
+        // A list's index belongs to the key of the frame that opened it.
+        if f.list && k > 0 {
+            path.push_str(&format!("[{}]", f.index));
+        }
+        if let Some(key) = &f.key {
+            if !path.is_empty() {
+                path.push('.');
+            }
+            path.push_str(key);
+        }
+    }
+    (!path.is_empty()).then_some(path)
 }
 
 /// The field whose value starts the text at 1-based `line`, `col` of `src`: the name before
@@ -177,6 +352,31 @@ fn nth_list_item(src: &str, from: usize, n: usize) -> Option<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_enclosing_field_is_the_path_of_keys_and_list_items() {
+        let src = "Scene(simulation: (dx: 0.005, cells: (24, X, 24)), bodies: [(name: \"a\"), (fill: Box(min: (0, 0, X)))], materials: {\"sand\": DP((density: X))})";
+        let at = |n: usize| {
+            let off = src.match_indices('X').nth(n).unwrap().0;
+            enclosing_field(src, off)
+        };
+        assert_eq!(at(0).as_deref(), Some("simulation.cells"));
+        assert_eq!(at(1).as_deref(), Some("bodies[1].fill.min"));
+        assert_eq!(at(2).as_deref(), Some("materials.sand.density"));
+        assert_eq!(enclosing_field(src, 0), None);
+    }
+
+    #[test]
+    fn a_long_name_is_cut_with_its_length() {
+        let long = "a".repeat(10_000);
+        let cut = bounded(&format!("Unexpected field named `{long}` in `Scene`"));
+        assert!(cut.len() < 200, "{cut}");
+        assert!(
+            cut.contains("(10000 characters)") && cut.ends_with("in `Scene`"),
+            "{cut}"
+        );
+        assert_eq!(bounded("field `dx`"), "field `dx`");
+    }
 
     #[test]
     fn locate_nested_fields() {

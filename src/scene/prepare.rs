@@ -138,6 +138,12 @@ impl Scene {
     /// inside a container's wall, a particle outside the grid's safe region, and a substep
     /// above the stable one under `stability: Strict`.
     pub fn prepare(&self) -> Result<Prepared, SceneError> {
+        self.prepare_within(None)
+    }
+
+    /// [`Scene::prepare`] with the memory it may take capped at `limit` bytes as well as at
+    /// what the machine has (tests and fuzzing check that refusals come before allocations).
+    pub fn prepare_within(&self, limit: Option<u64>) -> Result<Prepared, SceneError> {
         let scene = self;
         let s = &scene.simulation;
         let dx = s.dx;
@@ -145,30 +151,47 @@ impl Scene {
         // Refuse a scene that cannot fit in memory before allocating it (an allocation that
         // fails aborts the process, and an over-committed one brings the OOM killer): the grid,
         // and the lattice every fill is cut from, at their largest.
-        let available = crate::util::available_memory_bytes();
+        let available = match (crate::util::available_memory_bytes(), limit) {
+            (Some(a), Some(l)) => Some(a.min(l)),
+            (a, l) => a.or(l),
+        };
         let nodes = (n[0] * n[1] * n[2]) as f64;
         let grid_bytes = nodes * GRID_BYTES_PER_NODE;
-        let candidates: f64 = scene
+        let lattices: Vec<f64> = scene
             .bodies
             .iter()
             .map(|b| {
                 let n = fill_lattice(scene, b).2;
                 n.x * n.y * n.z
             })
-            .sum();
+            .collect();
+        let candidates: f64 = lattices.iter().sum();
+        // Blame what needs the most: the grid, or the body with the largest lattice.
+        let largest = (0..lattices.len()).max_by(|&a, &b| lattices[a].total_cmp(&lattices[b]));
         check_memory(
             scene,
             available,
             grid_bytes + candidates * LATTICE_BYTES_PER_POINT,
             || {
-                (
+                match largest {
+                Some(i) if lattices[i] * LATTICE_BYTES_PER_POINT > grid_bytes => (
+                    format!("bodies[{i}].particles_per_cell"),
+                    scene.bodies[i].particles_per_cell.to_string(),
+                    format!(
+                        "the fill's lattice of {:.3e} points (at {} particles per cell) and a grid of {nodes:.3e} nodes",
+                        lattices[i], scene.bodies[i].particles_per_cell
+                    ),
+                    format!("lower bodies[{i}].particles_per_cell or shrink bodies[{i}].fill (or its container)"),
+                ),
+                _ => (
                     "simulation.cells".into(),
                     format!("{:?}", s.cells),
                     format!(
                         "a grid of {nodes:.3e} nodes and fills of {candidates:.3e} lattice points"
                     ),
-                    "raise simulation.dx, shrink simulation.cells or the fills".into(),
-                )
+                    "raise simulation.dx or shrink simulation.cells".into(),
+                ),
+            }
             },
         )?;
         let (lo, hi) = scene.domain();
@@ -209,6 +232,15 @@ impl Scene {
                     .iter()
                     .all(|(c, pose)| c.shape.sdf(pose.to_local(p)).0 > 0.25 * h)
             });
+            if x.is_empty() {
+                return Err(scene.field_error(FieldError::new(
+                    format!("bodies[{i}].fill"),
+                    "a fill with no particles",
+                    format!(
+                        "a fill that holds at least one particle at a spacing of {h:.3e} m clear of the colliders; enlarge it or raise particles_per_cell"
+                    ),
+                )));
+            }
             if let Some(p) = x
                 .iter()
                 .find(|p| !(p.cmpge(safe_lo).all() && p.cmple(safe_hi).all()))
@@ -292,18 +324,31 @@ impl Prepared {
     /// The stability guard and the horizon, from the bodies and the colliders' controls.
     fn guard(&mut self, scene: &Scene) -> Result<(), SceneError> {
         let s = &scene.simulation;
-        let mut wave_speed = 0.0f64;
-        let mut max_speed = 0.0f64;
-        for c in &self.colliders {
-            max_speed = max_speed.max(c.max_speed);
+        // The speeds, and the field that sets each (what a refusal points at).
+        let (mut wave_speed, mut wave_field) = (0.0f64, String::from("materials"));
+        let (mut max_speed, mut speed_field) = (0.0f64, String::from("simulation.dt"));
+        for (i, c) in self.colliders.iter().enumerate() {
+            if c.max_speed > max_speed {
+                (max_speed, speed_field) = (c.max_speed, format!("colliders[{i}].control"));
+            }
         }
-        for b in self.bodies.iter() {
+        for (i, b) in self.bodies.iter().enumerate() {
             let (mu, lambda) = b.lame;
             let rho = b.material.density();
-            wave_speed = wave_speed.max(((lambda + 2.0 * mu) / rho).sqrt());
-            max_speed = max_speed.max(b.velocity.length());
+            let c = ((lambda + 2.0 * mu) / rho).sqrt();
+            if c > wave_speed {
+                (wave_speed, wave_field) = (c, format!("materials.{}", scene.bodies[i].material));
+            }
+            if b.velocity.length() > max_speed {
+                (max_speed, speed_field) = (b.velocity.length(), format!("bodies[{i}].velocity"));
+            }
         }
-        self.stability = stability_guard(scene, wave_speed, max_speed)?;
+        let blame = if wave_speed >= max_speed {
+            wave_field
+        } else {
+            speed_field
+        };
+        self.stability = stability_guard(scene, wave_speed, max_speed, blame)?;
         let from_controls = self.colliders.iter().map(|c| c.controls.len()).max();
         self.horizon = s.steps.unwrap_or(from_controls.unwrap_or(0).max(1));
         Ok(())
@@ -311,10 +356,13 @@ impl Prepared {
 }
 
 /// `Δt_sub ≤ C·dx/(c + v)`: the substeps the scene runs at, or its refusal.
+/// `blame` is the field that sets the larger of the two speeds, named when the substeps Auto
+/// would need are too many; under `Strict` the refusal names `simulation.substeps`.
 fn stability_guard(
     scene: &Scene,
     wave_speed: f64,
     max_speed: f64,
+    blame: String,
 ) -> Result<StabilityReport, SceneError> {
     let s = &scene.simulation;
     let dx = s.dx;
@@ -341,22 +389,26 @@ fn stability_guard(
             speed(max_speed),
             s.cfl
         );
-        let refuse = move |advice: String| SceneError::Unstable {
-            file: scene.path.clone(),
-            dt_sub,
-            dt_max,
-            needed,
-            reason,
-            advice,
+        let refuse = move |field: String, advice: String| {
+            let (line, col) = super::locate(&scene.source, &field);
+            SceneError::Unstable {
+                file: scene.path.clone(),
+                line,
+                col,
+                field,
+                dt_sub,
+                dt_max,
+                reason_and_advice: format!("{reason}); {advice}"),
+            }
         };
         if too_many {
-            return Err(refuse(format!(
+            return Err(refuse(blame, format!(
                 "it would need {needed:.3e} substeps per step, more than the {MAX_AUTO_SUBSTEPS} even stability: Auto takes: lower the materials' youngs_modulus (the wave speed grows as its square root) or the tool speeds, or raise dx"
             )));
         }
         match s.stability {
             Stability::Strict => {
-                return Err(refuse(format!(
+                return Err(refuse("simulation.substeps".into(), format!(
                     "with stability: Strict the scene is refused: raise simulation.substeps to at least {needed} or set stability: Auto"
                 )))
             }
@@ -402,8 +454,12 @@ fn check_memory(
         field,
         value,
         format!(
-            "a scene that fits in memory: {needs} need about {:.1} GB, and {:.1} GB are available; {fix}",
-            need / 1e9,
+            "a scene that fits in memory: {needs} need about {} GB, and {:.1} GB are available; {fix}",
+            if need < 1e15 {
+                format!("{:.1}", need / 1e9)
+            } else {
+                format!("{:.3e}", need / 1e9)
+            },
             avail as f64 / 1e9
         ),
     )))

@@ -6,6 +6,28 @@ use crate::error::{FieldError, SceneError};
 use crate::math::sdf::Shape;
 use crate::skills::SkillSpec;
 
+// Admissible ranges: what the model can run, not merely what is finite. Each is documented in
+// scenes/README.md.
+
+/// Smallest cell (m): a micron, below any powder's grain.
+pub const MIN_DX: f64 = 1e-6;
+/// Largest cell (m).
+pub const MAX_DX: f64 = 10.0;
+/// Largest step (s).
+pub const MAX_DT: f64 = 10.0;
+/// Largest |coordinate| of the domain's corner or a collider (m).
+pub const MAX_COORDINATE: f64 = 1e3;
+/// Largest |gravity| component (m/s²): a thousand g.
+pub const MAX_GRAVITY: f64 = 1e4;
+/// Largest |initial velocity| component of a body (m/s).
+pub const MAX_SPEED: f64 = 1e3;
+/// Largest Coulomb friction coefficient: from about 2 on every contact sticks, so a larger one
+/// changes nothing but is likely a slip (degrees for a coefficient).
+pub const MAX_FRICTION: f64 = 10.0;
+const FRICTION_RANGE: &str = "a Coulomb coefficient in [0, 10] (every contact sticks from about 2)";
+/// Most particles per cell (10 per axis); more are refused before the memory check.
+pub const MAX_PARTICLES_PER_CELL: usize = 1000;
+
 impl Scene {
     /// Checks every field (what [`Scene::parse`] does after parsing): for scenes edited in code.
     pub fn validate(&self) -> Result<(), SceneError> {
@@ -18,11 +40,21 @@ impl Scene {
             if ok && v.is_finite() {
                 Ok(())
             } else {
-                Err(FieldError::new(f, v.to_string(), exp))
+                Err(FieldError::new(f, crate::error::num(v), exp))
             }
         };
-        pos("simulation.dx", s.dx, s.dx > 0.0, "> 0 m")?;
-        pos("simulation.dt", s.dt, s.dt > 0.0, "> 0 s")?;
+        pos(
+            "simulation.dx",
+            s.dx,
+            (MIN_DX..=MAX_DX).contains(&s.dx),
+            &format!("in [{MIN_DX:e}, {MAX_DX}] m"),
+        )?;
+        pos(
+            "simulation.dt",
+            s.dt,
+            s.dt > 0.0 && s.dt <= MAX_DT,
+            &format!("in (0, {MAX_DT}] s"),
+        )?;
         pos(
             "simulation.cfl",
             s.cfl,
@@ -35,8 +67,19 @@ impl Scene {
             s.empty_node_ratio >= 0.0 && s.empty_node_ratio < 1.0,
             "in [0, 1)",
         )?;
-        if s.substeps == 0 {
-            return Err(FieldError::new("simulation.substeps", "0", ">= 1"));
+        if s.substeps == 0 || s.substeps > MAX_AUTO_SUBSTEPS {
+            return Err(FieldError::new(
+                "simulation.substeps",
+                s.substeps.to_string(),
+                format!("in [1, {MAX_AUTO_SUBSTEPS}] (the most stability: Auto ever takes)"),
+            ));
+        }
+        if s.walls.cells == 0 {
+            return Err(FieldError::new(
+                "simulation.walls.cells",
+                "0",
+                ">= 1: the wall layer is what keeps the particles inside the grid",
+            ));
         }
         if s.threads > MAX_THREADS {
             return Err(FieldError::new(
@@ -56,19 +99,23 @@ impl Scene {
                 ));
             }
         }
-        for (name, v) in [
-            ("simulation.domain_min", s.domain_min),
-            ("simulation.gravity", s.gravity),
+        for (name, v, max, unit) in [
+            ("simulation.domain_min", s.domain_min, MAX_COORDINATE, "m"),
+            ("simulation.gravity", s.gravity, MAX_GRAVITY, "m/s²"),
         ] {
-            if ![v.0, v.1, v.2].iter().all(|x| x.is_finite()) {
-                return Err(FieldError::new(name, format!("{v:?}"), "finite numbers"));
+            if ![v.0, v.1, v.2].iter().all(|x| x.abs() <= max) {
+                return Err(FieldError::new(
+                    name,
+                    format!("{v:?}"),
+                    format!("components in [-{max}, {max}] {unit}"),
+                ));
             }
         }
         pos(
             "simulation.walls.friction",
             s.walls.friction,
-            s.walls.friction >= 0.0,
-            ">= 0",
+            (0.0..=MAX_FRICTION).contains(&s.walls.friction),
+            FRICTION_RANGE,
         )?;
         for (name, m) in &self.materials {
             m.validate()
@@ -87,9 +134,17 @@ impl Scene {
             pos(
                 &format!("{at}.friction"),
                 c.friction,
-                c.friction >= 0.0,
-                ">= 0",
+                (0.0..=MAX_FRICTION).contains(&c.friction),
+                FRICTION_RANGE,
             )?;
+            let r = c.rotation_deg;
+            if ![r.0, r.1, r.2].iter().all(|a| a.abs() <= 360.0) {
+                return Err(FieldError::new(
+                    format!("{at}.rotation_deg"),
+                    format!("{r:?}"),
+                    "angles in [-360, 360] degrees",
+                ));
+            }
             pos(
                 &format!("{at}.band_cells"),
                 c.band_cells,
@@ -100,11 +155,11 @@ impl Scene {
                 .validate()
                 .map_err(|e| e.within(&format!("{at}.shape")))?;
             let p = c.position;
-            if ![p.0, p.1, p.2].iter().all(|x| x.is_finite()) {
+            if ![p.0, p.1, p.2].iter().all(|x| x.abs() <= MAX_COORDINATE) {
                 return Err(FieldError::new(
                     format!("{at}.position"),
                     format!("{p:?}"),
-                    "finite numbers",
+                    format!("coordinates in [-{MAX_COORDINATE}, {MAX_COORDINATE}] m"),
                 ));
             }
             match (c.kind, &c.control) {
@@ -144,6 +199,13 @@ impl Scene {
                 _ => {}
             }
         }
+        if self.bodies.is_empty() {
+            return Err(FieldError::new(
+                "bodies",
+                "[]",
+                "at least one body: a scene without particles has nothing to simulate",
+            ));
+        }
         for (i, b) in self.bodies.iter().enumerate() {
             let at = format!("bodies[{i}]");
             if !self.materials.contains_key(&b.material) {
@@ -157,11 +219,14 @@ impl Scene {
                 ));
             }
             let ppa = (b.particles_per_cell as f64).cbrt().round() as usize;
-            if ppa == 0 || ppa * ppa * ppa != b.particles_per_cell {
+            if ppa == 0
+                || ppa * ppa * ppa != b.particles_per_cell
+                || b.particles_per_cell > MAX_PARTICLES_PER_CELL
+            {
                 return Err(FieldError::new(
                     format!("{at}.particles_per_cell"),
                     b.particles_per_cell.to_string(),
-                    "a cube number: 1, 8, 27 or 64",
+                    format!("a cube number up to {MAX_PARTICLES_PER_CELL}: 1, 8, 27, 64, …"),
                 ));
             }
             if let Lattice::Jittered(j) = b.lattice {
@@ -229,11 +294,11 @@ impl Scene {
                 }
             }
             let v = b.velocity;
-            if ![v.0, v.1, v.2].iter().all(|x| x.is_finite()) {
+            if ![v.0, v.1, v.2].iter().all(|x| x.abs() <= MAX_SPEED) {
                 return Err(FieldError::new(
                     format!("{at}.velocity"),
                     format!("{v:?}"),
-                    "finite numbers",
+                    format!("components in [-{MAX_SPEED}, {MAX_SPEED}] m/s"),
                 ));
             }
         }

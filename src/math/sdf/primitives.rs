@@ -164,11 +164,19 @@ pub fn capsule_hessian(p: DVec3, half_length: f64, radius: f64) -> DMat3 {
 }
 
 /// `> 0 m` check of a length field.
+/// Largest length of a shape's dimension (m): a lab's tools and containers, with room to
+/// spare; a larger one is a unit slip, and at 1e308 m the shape's bounds overflow.
+pub const MAX_SHAPE_LENGTH: f64 = 100.0;
+
 pub(super) fn positive(field: &'static str, v: f64) -> Result<(), FieldError> {
-    if v > 0.0 && v.is_finite() {
+    if v > 0.0 && v <= MAX_SHAPE_LENGTH {
         Ok(())
     } else {
-        Err(FieldError::new(field, v.to_string(), "> 0 m"))
+        Err(FieldError::new(
+            field,
+            crate::error::num(v),
+            format!("in (0, {MAX_SHAPE_LENGTH}] m"),
+        ))
     }
 }
 
