@@ -36,5 +36,8 @@ fn the_soft_mass_of_a_settled_pour_is_its_hard_count() {
         );
         poured += usize::from(hard_g > 0.3);
     }
-    assert_eq!(poured, 4, "every point pours: the check is not of empty cups");
+    assert_eq!(
+        poured, 4,
+        "every point pours: the check is not of empty cups"
+    );
 }

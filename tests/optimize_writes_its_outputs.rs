@@ -83,7 +83,9 @@ fn optimize_writes_metrics_summary_figure_and_recording() {
 fn without_method_optimize_runs_the_benchmarks_verdict_at_equal_compute() {
     let out = std::env::temp_dir().join(format!("powderlab-opt-default-{}", std::process::id()));
     let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
-        .args(["optimize", SCENE, "--epochs", "4", "--seeds", "1", "--json", "--out"])
+        .args([
+            "optimize", SCENE, "--epochs", "4", "--seeds", "1", "--json", "--out",
+        ])
         .arg(&out)
         .output()
         .unwrap();
@@ -98,8 +100,7 @@ fn without_method_optimize_runs_the_benchmarks_verdict_at_equal_compute() {
     ran.sort_unstable();
     assert_eq!(ran, ["cmaes", "hybrid", "random", "sac"]);
     let settings: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("settings.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(out.join("settings.json")).unwrap()).unwrap();
     assert_eq!(settings["equal_compute"], true, "{settings}");
     assert_eq!(settings["epochs"], 4, "{settings}");
     std::fs::remove_dir_all(&out).ok();

@@ -375,10 +375,13 @@ pub fn report(cells: &[Cell], command: &str, unit: &str, budget: usize) -> Strin
     for c in cells {
         let (m, sd) = mean_std(&c.dose);
         let p = |base: &str| {
-            let b = cells.iter().find(|b| b.knots == c.knots && b.method == base);
+            let b = cells
+                .iter()
+                .find(|b| b.knots == c.knots && b.method == base);
             match b {
-                Some(b) if ADJOINT.contains(&c.method.as_str()) => wilcoxon_less(&c.dose, &b.dose)
-                    .map_or("tie".to_string(), |p| format!("{p:.3}")),
+                Some(b) if ADJOINT.contains(&c.method.as_str()) => {
+                    wilcoxon_less(&c.dose, &b.dose).map_or("tie".to_string(), |p| format!("{p:.3}"))
+                }
                 _ => "–".to_string(),
             }
         };
