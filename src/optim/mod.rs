@@ -96,10 +96,10 @@ impl Method {
     /// The paper's comparison (eq. 5 by RMSprop against the three baselines, 30 rollouts each).
     pub const PAPER: [Method; 4] = [Method::Grad, Method::Cmaes, Method::Sac, Method::Random];
     /// `optimize`'s default, from the benchmark at equal compute
-    /// (`docs/results/optimisation.md`): SAC, which has the lowest mean dose error on the
-    /// transport task; the hybrid, the gradient-informed method with the lowest on both tasks
-    /// (and the lowest of all on precise dosing); and the other two baselines. No method beat
-    /// all the others there at p < 0.05, so the baselines run beside it.
+    /// (`docs/results/optimisation.md`): SAC, the lowest mean dose error on the transport task;
+    /// CMA-ES, the lowest on precise dosing; the hybrid, the gradient-informed method that comes
+    /// closest on both; and random search. No method beat all the others on both tasks at
+    /// p < 0.05, so the default runs them side by side.
     pub const DEFAULT: [Method; 4] = [Method::Sac, Method::Hybrid, Method::Cmaes, Method::Random];
     /// The default set's budget per seed and method, in forward rollouts at equal compute (the
     /// benchmark's).
