@@ -95,15 +95,6 @@ fn gravity_beyond_a_thousand_g_is_refused() {
 }
 
 #[test]
-fn a_scene_without_bodies_is_refused() {
-    let src = std::fs::read_to_string(common::scene_path("free_fall.ron")).unwrap();
-    let a = src.find("bodies: [").unwrap();
-    let b = a + src[a..].find("    ],").unwrap() + "    ],".len();
-    let msg = refusal(&format!("{}bodies: [],{}", &src[..a], &src[b..]));
-    names(&msg, "bodies");
-}
-
-#[test]
 fn an_explicit_substep_count_above_the_auto_cap_is_refused() {
     let msg = refusal(&edited(
         "free_fall.ron",

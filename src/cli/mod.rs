@@ -45,9 +45,15 @@ pub fn bar(len: u64, quiet: bool) -> ProgressBar {
 pub fn describe_stability(sim: &Simulation) {
     let s = &sim.stability;
     let p = sim.params();
+    // Nothing moves and nothing is elastic (no particles, static colliders): no limit.
+    let limit = if s.dt_max.is_finite() {
+        format!("{:.3e} s", s.dt_max)
+    } else {
+        "unlimited (nothing in the scene moves or deforms)".into()
+    };
     eprintln!(
-        "stability: wave speed {:.3} m/s, largest speed {:.3} m/s, stable substep {:.3e} s",
-        s.wave_speed, s.max_speed, s.dt_max
+        "stability: wave speed {:.3} m/s, largest speed {:.3} m/s, stable substep {limit}",
+        s.wave_speed, s.max_speed
     );
     if s.raised() {
         eprintln!(

@@ -72,6 +72,10 @@ pub struct Args {
     /// the default set always runs so.
     #[arg(long)]
     equal_compute: bool,
+    /// The hybrid's share of the budget spent on its Sobol points before the trust region
+    /// (in (0, 1)).
+    #[arg(long, default_value_t = 0.5)]
+    hybrid_global: f64,
     /// Memory budget of a backward pass's tape in MB.
     #[arg(long, default_value_t = 1024)]
     budget_mb: usize,
@@ -102,6 +106,7 @@ pub fn run(args: Args) -> Result<()> {
         smooth_sigma,
         smooth_packing,
         equal_compute,
+        hybrid_global,
         budget_mb,
         json: json_out,
     } = args;
@@ -157,6 +162,9 @@ pub fn run(args: Args) -> Result<()> {
             "--smooth-sigma {smooth_sigma}: expected a positive standard deviation, such as 0.05"
         );
     }
+    if !(hybrid_global > 0.0 && hybrid_global < 1.0) {
+        bail!("--hybrid-global {hybrid_global}: expected a share of the budget in (0, 1), such as 0.5");
+    }
     if !(smooth_packing >= 0.0 && smooth_packing.is_finite()) {
         bail!("--smooth-packing {smooth_packing}: expected a fraction of the particle spacing, 0 or more, such as 0.1");
     }
@@ -195,7 +203,10 @@ pub fn run(args: Args) -> Result<()> {
             sigma: smooth_sigma,
             packing: smooth_packing,
         },
-        hybrid: optim::HybridConfig::default(),
+        hybrid: optim::HybridConfig {
+            global: hybrid_global,
+            ..Default::default()
+        },
         equal_compute,
         tape_budget: budget_mb << 20,
     };

@@ -232,15 +232,6 @@ impl Scene {
                     .iter()
                     .all(|(c, pose)| c.shape.sdf(pose.to_local(p)).0 > 0.25 * h)
             });
-            if x.is_empty() {
-                return Err(scene.field_error(FieldError::new(
-                    format!("bodies[{i}].fill"),
-                    "a fill with no particles",
-                    format!(
-                        "a fill that holds at least one particle at a spacing of {h:.3e} m clear of the colliders; enlarge it or raise particles_per_cell"
-                    ),
-                )));
-            }
             if let Some(p) = x
                 .iter()
                 .find(|p| !(p.cmpge(safe_lo).all() && p.cmple(safe_hi).all()))

@@ -199,13 +199,6 @@ impl Scene {
                 _ => {}
             }
         }
-        if self.bodies.is_empty() {
-            return Err(FieldError::new(
-                "bodies",
-                "[]",
-                "at least one body: a scene without particles has nothing to simulate",
-            ));
-        }
         for (i, b) in self.bodies.iter().enumerate() {
             let at = format!("bodies[{i}]");
             if !self.materials.contains_key(&b.material) {
