@@ -3,6 +3,8 @@
 //! region's faces on the cavity's surface it read 15 % short, so `M = m*` was an over-delivery
 //! of 0.35 g at 2 g).
 
+#![cfg(feature = "lab")]
+
 mod common;
 
 use powderlab::adjoint::loss::{scene_loss, Loss};
