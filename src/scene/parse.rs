@@ -23,8 +23,7 @@ impl Scene {
             Err(e) => {
                 let at = e.valid_up_to();
                 let good = std::str::from_utf8(&bytes[..at]).expect("valid up to `at`");
-                let line = good.matches('\n').count() + 1;
-                let col = good.len() - good.rfind('\n').map_or(0, |p| p + 1) + 1;
+                let (line, col) = line_col(good, at);
                 Err(SceneError::Parse {
                     file: path.to_path_buf(),
                     line,
@@ -47,8 +46,9 @@ impl Scene {
             .map_err(|e| {
                 let (line, col) = (e.span.start.line, e.span.start.col);
                 // ron names the problem but not the field ("Integer is out of bounds").
+                // (A `name:` before the position on its line is the innermost key, so the
+                // enclosing path always includes it.)
                 let field = enclosing_field(src, offset_of(src, line, col))
-                    .or_else(|| field_before(src, line, col))
                     .unwrap_or_else(|| "Scene".into());
                 SceneError::Parse {
                     file: path.to_path_buf(),
@@ -229,32 +229,6 @@ pub fn enclosing_field(src: &str, offset: usize) -> Option<String> {
     (!path.is_empty()).then_some(path)
 }
 
-/// The field whose value starts the text at 1-based `line`, `col` of `src`: the name before
-/// the last `:` on that line, when only the start of a plain value (a number, a sign, a word)
-/// lies between that `:` and `col`. `None` inside a tuple, list or map, or off a value.
-fn field_before(src: &str, line: usize, col: usize) -> Option<String> {
-    let text = src.lines().nth(line.checked_sub(1)?)?;
-    let prefix: String = text.chars().take(col.saturating_sub(1)).collect();
-    let colon = prefix.rfind(':')?;
-    let value = &prefix[colon + 1..];
-    if value
-        .chars()
-        .any(|c| matches!(c, ',' | '(' | ')' | '[' | ']' | '{' | '}' | '"'))
-    {
-        return None;
-    }
-    let name: String = prefix[..colon]
-        .trim_end()
-        .chars()
-        .rev()
-        .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-        .collect::<Vec<_>>()
-        .into_iter()
-        .rev()
-        .collect();
-    (!name.is_empty() && !name.starts_with(|c: char| c.is_ascii_digit())).then_some(name)
-}
-
 /// Line and column (1-based) of a dotted field path such as `colliders[1].shape.radius` in RON
 /// text: each key is searched after the previous one; `name[i]` skips to the i-th item of the
 /// list that follows `name`. Falls back to the deepest key found.
@@ -277,6 +251,11 @@ pub fn locate(src: &str, path: &str) -> (usize, usize) {
             }
         }
     }
+    line_col(src, offset)
+}
+
+/// Line and column (1-based, the column in bytes) of byte `offset` of `src`.
+fn line_col(src: &str, offset: usize) -> (usize, usize) {
     let before = &src[..offset];
     let line = before.matches('\n').count() + 1;
     let col = before.len() - before.rfind('\n').map_or(0, |p| p + 1) + 1;
