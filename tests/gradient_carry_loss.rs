@@ -4,7 +4,7 @@
 //! final-state loss beside them.
 
 use glam::DVec3;
-use powderlab::adjoint::tape::{gradient_with, Carry, Loss, Tape};
+use powderlab::adjoint::tape::{gradient_with, Carry, Loss, Tape, Term};
 use powderlab::scene::{ControlSpec, Scene};
 
 mod common;
@@ -37,6 +37,10 @@ fn terms(scene: &Scene) -> Vec<Carry> {
         .collect()
 }
 
+fn as_terms(carry: &[Carry]) -> Vec<Term> {
+    carry.iter().cloned().map(Term::Carry).collect()
+}
+
 /// Nothing on the final positions: the carry terms alone.
 fn no_final_loss(scene: &Scene) -> Loss {
     let mut sim = common::build(scene, 1);
@@ -52,9 +56,15 @@ fn no_final_loss(scene: &Scene) -> Loss {
 fn value(scene: &Scene) -> f64 {
     let mut sim = common::build(scene, 2);
     let loss = no_final_loss(scene);
-    gradient_with(&mut sim, STEPS, &loss, &terms(scene), Tape::Every(STEPS))
-        .unwrap()
-        .loss
+    gradient_with(
+        &mut sim,
+        STEPS,
+        &loss,
+        &as_terms(&terms(scene)),
+        Tape::Every(STEPS),
+    )
+    .unwrap()
+    .loss
 }
 
 #[test]
@@ -63,7 +73,14 @@ fn carry_loss_gradient_through_the_spoon_matches_central_differences() {
     let mut sim = common::build(&scene, 2);
     let loss = no_final_loss(&scene);
     let ts = terms(&scene);
-    let g = gradient_with(&mut sim, STEPS, &loss, &ts, Tape::Budget(1 << 30)).unwrap();
+    let g = gradient_with(
+        &mut sim,
+        STEPS,
+        &loss,
+        &as_terms(&ts),
+        Tape::Budget(1 << 30),
+    )
+    .unwrap();
     assert!(g.loss > 0.0, "the terms must be away from their targets");
     // The same value from a plain forward evaluation of the terms (the spoon's pose and the
     // positions at the term's step, not a step off).

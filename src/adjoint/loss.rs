@@ -12,6 +12,10 @@
 //!   gives a gradient to the particles within a few `w` of the cavity's boundary. Far from the
 //!   cup (many `w` away) the gradient vanishes like `e^(−d/w)`: start dosing from a skill that
 //!   already reaches the cup (for example one optimised with eq. 5), or use a wider `w`.
+//! - [`Loss::HeightField`] and [`Loss::Chamfer`], for calibration from observations: the mean
+//!   squared gap between the observed surface heights and the particles' soft heights
+//!   ([`crate::math::heightfield`]), and the Chamfer distance to an observed point cloud
+//!   ([`crate::math::chamfer`]). Both are smooth sums over many particles.
 //! - [`Loss::MeanL1`], the Taichi reference benchmark's loss, and [`Loss::Linear`], for
 //!   closed-form checks.
 //!
@@ -19,8 +23,10 @@
 
 use glam::DVec3;
 
+use crate::math::chamfer;
 use crate::math::geometry::logistic;
 pub use crate::math::geometry::CupRegion;
+use crate::math::heightfield::{self, HeightGrid};
 use crate::scene::{LossSpec, Scene};
 
 /// The dosing loss's default ramp width, in particle spacings. With the soft region's faces in
@@ -68,6 +74,52 @@ pub enum Loss {
     Linear(Vec<Vec<DVec3>>),
     /// `((M − m*)/m*)²` with the soft transported mass `M` (see the module docs).
     Dosing(Dosing),
+    /// `(1/n) Σ_c (h_c − o_c)²` between the soft surface heights and an observed height map.
+    HeightField(HeightObservation),
+    /// The Chamfer distance between all bodies' particles and an observed point cloud.
+    Chamfer(chamfer::Observed),
+}
+
+/// An observed height map and the soft height's settings ([`crate::math::heightfield`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct HeightObservation {
+    pub grid: HeightGrid,
+    /// Observed height per pixel (m), NaN where unseen; `grid.len()` entries.
+    pub observed: Vec<f64>,
+    /// The height an empty pixel reads (m): the floor.
+    pub base: f64,
+    /// From a grain's centre to its top (m): half a particle spacing.
+    pub top: f64,
+    /// The soft maximum's temperature (m), > 0.
+    pub tau: f64,
+    /// The width of the soft footprint's edge (m), > 0.
+    pub edge: f64,
+}
+
+impl HeightObservation {
+    /// The simulated soft heights of `xs`.
+    pub fn heights(&self, xs: &[DVec3]) -> Vec<f64> {
+        heightfield::soft_heights(&self.grid, xs, self.base, self.top, self.tau, self.edge)
+    }
+}
+
+/// Every body's positions in one slice, and the gradient split back per body.
+fn on_all_bodies(
+    xs: &[Vec<DVec3>],
+    f: impl FnOnce(&[DVec3]) -> (f64, Vec<DVec3>),
+) -> (f64, Vec<Vec<DVec3>>) {
+    let all: Vec<DVec3> = xs.iter().flatten().copied().collect();
+    let (l, g) = f(&all);
+    let mut rest = g.as_slice();
+    let split = xs
+        .iter()
+        .map(|x| {
+            let (a, b) = rest.split_at(x.len());
+            rest = b;
+            a.to_vec()
+        })
+        .collect();
+    (l, split)
 }
 
 fn sign(v: f64) -> f64 {
@@ -83,6 +135,19 @@ fn sign(v: f64) -> f64 {
 impl Loss {
     /// The loss and `∂L/∂x` per body.
     pub fn eval(&self, xs: &[Vec<DVec3>]) -> (f64, Vec<Vec<DVec3>>) {
+        match self {
+            Loss::HeightField(o) => {
+                return on_all_bodies(xs, |all| {
+                    let (l, g_h) = heightfield::squared_error(&o.heights(all), &o.observed);
+                    let g = heightfield::soft_heights_adj(
+                        &o.grid, all, o.base, o.top, o.tau, o.edge, &g_h,
+                    );
+                    (l, g)
+                })
+            }
+            Loss::Chamfer(o) => return on_all_bodies(xs, |all| chamfer::chamfer(all, o)),
+            _ => {}
+        }
         if let Loss::Dosing(d) = self {
             let mass = d.soft_mass(xs);
             let r = (mass - d.target_mass) / d.target_mass;
@@ -127,7 +192,9 @@ impl Loss {
                             l += w[b][i].dot(*p);
                             w[b][i]
                         }
-                        Loss::Dosing(_) => unreachable!("handled above"),
+                        Loss::Dosing(_) | Loss::HeightField(_) | Loss::Chamfer(_) => {
+                            unreachable!("handled above")
+                        }
                     })
                     .collect()
             })
@@ -197,6 +264,33 @@ pub struct Carry {
     pub target_mass: f64,
     /// Weight `w` of the term.
     pub weight: f64,
+}
+
+/// A loss on the state at the start of a global step, added to a backward pass's loss on the
+/// final state ([`crate::adjoint::tape::gradient_with`]).
+#[derive(Clone, Debug)]
+pub enum Term {
+    /// What a tool carries at its step.
+    Carry(Carry),
+    /// A loss on every body's positions at `step`: an observation of the state at that time (a
+    /// height map or point cloud of a sequence).
+    Positions { step: usize, loss: Loss },
+}
+
+impl Term {
+    /// The global step whose start state it scores (`steps` for the final state).
+    pub fn step(&self) -> usize {
+        match self {
+            Term::Carry(c) => c.step,
+            Term::Positions { step, .. } => *step,
+        }
+    }
+}
+
+impl From<Carry> for Term {
+    fn from(c: Carry) -> Term {
+        Term::Carry(c)
+    }
 }
 
 /// A [`Carry`] term's value and gradients.

@@ -20,7 +20,7 @@ use super::checkpoint::{checkpoint_interval, restore, snapshot};
 pub use super::checkpoint::{Snapshot, Tape};
 use super::gravity::GravityAdj;
 use super::grid_collision::ColliderAdj;
-pub use super::loss::{Carry, CarryGrad, Loss};
+pub use super::loss::{Carry, CarryGrad, Loss, Term};
 use super::particle_collision::ParticleCollisionInput;
 use super::replay::{Replay, SubstepRecord, Timing};
 use super::tool_move::ControlAdj;
@@ -104,18 +104,47 @@ pub fn gradient(
     gradient_with(sim, steps, loss, &[], tape)
 }
 
-/// [`gradient`] of `loss` on the final positions plus `terms`, each a [`Carry`] loss on the
-/// state at the start of its step (a tool's carried mass while it moves). The reverse sweep
-/// adds each term's gradient to the particles' and the tool's adjoints when it reaches the
-/// term's step.
+/// [`gradient`] of `loss` on the final positions plus `terms`, each a loss on the state at the
+/// start of its step ([`Term`]: a tool's carried mass while it moves, or an observation of the
+/// positions at that time). The reverse sweep adds each term's gradient to the particles' (and a
+/// carry term's tool's) adjoints when it reaches the term's step.
 pub fn gradient_with(
     sim: &mut Simulation,
     steps: usize,
     loss: &Loss,
-    terms: &[Carry],
+    terms: &[Term],
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
     sim.on_worker(|sim| gradient_in_pool(sim, steps, loss, terms, tape))
+}
+
+/// Every body's positions, in scene order.
+fn positions(world: &mut World) -> Vec<Vec<DVec3>> {
+    let mut q = world.query::<(&Body, &Position)>();
+    let mut xs: Vec<(usize, Vec<DVec3>)> =
+        q.iter(world).map(|(b, x)| (b.index, x.0.clone())).collect();
+    xs.sort_by_key(|e| e.0);
+    xs.into_iter().map(|e| e.1).collect()
+}
+
+/// A term's value and gradients from the state at its step.
+fn score_term(world: &mut World, term: &Term) -> Result<CarryGrad, AdjointError> {
+    match term {
+        Term::Carry(c) => {
+            let (xs, pose) = positions_and_pose(world, &c.tool)?;
+            Ok(c.eval(&xs, &pose))
+        }
+        Term::Positions { loss, .. } => {
+            let (value, x) = loss.eval(&positions(world));
+            Ok(CarryGrad {
+                value,
+                mass: 0.0,
+                x,
+                translation: DVec3::ZERO,
+                rotation: DVec3::ZERO,
+            })
+        }
+    }
 }
 
 /// Every body's positions, in scene order, and the pose of the collider named `tool`.
@@ -123,10 +152,7 @@ fn positions_and_pose(
     world: &mut World,
     tool: &str,
 ) -> Result<(Vec<Vec<DVec3>>, crate::math::pose::Pose), AdjointError> {
-    let mut q = world.query::<(&Body, &Position)>();
-    let mut xs: Vec<(usize, Vec<DVec3>)> =
-        q.iter(world).map(|(b, x)| (b.index, x.0.clone())).collect();
-    xs.sort_by_key(|e| e.0);
+    let xs = positions(world);
     let mut c = world.query::<(&Collider, &ColliderPose)>();
     let pose = c
         .iter(world)
@@ -137,12 +163,12 @@ fn positions_and_pose(
                 "a carry loss names a tool '{tool}' the scene does not have"
             ))
         })?;
-    Ok((xs.into_iter().map(|e| e.1).collect(), pose))
+    Ok((xs, pose))
 }
 
-/// Adds a carry term's gradient to the adjoint state (the particles' positions and its tool's
-/// pose).
-fn add_carry_gradient(world: &mut World, bodies: &[Entity], term: &Carry, g: &CarryGrad) {
+/// Adds a term's gradient to the adjoint state (the particles' positions and, for a carry term,
+/// its tool's pose).
+fn add_term_gradient(world: &mut World, bodies: &[Entity], term: &Term, g: &CarryGrad) {
     for (e, gx) in bodies.iter().zip(&g.x) {
         if let Some(mut adj) = world.get_mut::<PositionAdj>(*e) {
             for (a, b) in adj.0.iter_mut().zip(gx) {
@@ -150,6 +176,9 @@ fn add_carry_gradient(world: &mut World, bodies: &[Entity], term: &Carry, g: &Ca
             }
         }
     }
+    let Term::Carry(term) = term else {
+        return;
+    };
     let mut q = world.query::<(&Collider, &mut ColliderAdj)>();
     for (c, mut a) in q.iter_mut(world) {
         if c.name == term.tool {
@@ -163,13 +192,13 @@ fn gradient_in_pool(
     sim: &mut Simulation,
     steps: usize,
     loss: &Loss,
-    terms: &[Carry],
+    terms: &[Term],
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
-    if let Some(t) = terms.iter().find(|t| t.step > steps) {
+    if let Some(t) = terms.iter().find(|t| t.step() > steps) {
         return Err(AdjointError::NotDifferentiable(format!(
-            "a carry loss at step {} of a {steps}-step pass",
-            t.step
+            "a loss term at step {} of a {steps}-step pass",
+            t.step()
         )));
     }
     for c in &sim.scene.colliders {
@@ -227,13 +256,12 @@ fn gradient_in_pool(
     let mut checkpoints = Vec::with_capacity(steps.div_ceil(k));
     let last_segment = (steps - 1) / k * k;
     let mut last_starts = Vec::new();
-    // Each carry term's value and gradients, from the forward state at its step.
+    // Each term's value and gradients, from the forward state at its step.
     let mut carried: Vec<Option<CarryGrad>> = vec![None; terms.len()];
     let mut score = |world: &mut World, s: usize| -> Result<(), AdjointError> {
         for (t, slot) in terms.iter().zip(carried.iter_mut()) {
-            if t.step == s {
-                let (xs, pose) = positions_and_pose(world, &t.tool)?;
-                *slot = Some(t.eval(&xs, &pose));
+            if t.step() == s {
+                *slot = Some(score_term(world, t)?);
             }
         }
         Ok(())
@@ -262,8 +290,8 @@ fn gradient_in_pool(
     let (body_ents, collider_ents) = install_adjoint_state(&mut sim.world, g_x);
     let add_terms_at = |world: &mut World, s: usize| {
         for (t, g) in terms.iter().zip(&carried) {
-            if t.step == s {
-                add_carry_gradient(world, &body_ents, t, g);
+            if t.step() == s {
+                add_term_gradient(world, &body_ents, t, g);
             }
         }
     };

@@ -4,8 +4,10 @@
 //! and write the results back. The adjoint twins (`*_adj`) will sit beside each function
 //! (see `crate::adjoint`).
 
+pub mod chamfer;
 pub mod contact;
 pub mod geometry;
+pub mod heightfield;
 pub mod kernel;
 pub mod mesh;
 pub mod pose;

@@ -2,7 +2,7 @@
 //! parameters Θ (forward only, or with `∂L/∂Θ` from the adjoint pass).
 
 use crate::adjoint::loss::scene_loss;
-use crate::adjoint::tape::{gradient_with, Carry, Loss, Tape};
+use crate::adjoint::tape::{gradient_with, Carry, Loss, Tape, Term};
 use crate::error::FieldError;
 use crate::metrics::frame_metrics;
 use crate::scene::{ControlSpec, Scene, TargetValue};
@@ -287,7 +287,8 @@ impl Problem {
         terms: &[Carry],
     ) -> Result<(f64, [f64; 5]), crate::error::AdjointError> {
         let steps = sim.horizon;
-        let g = gradient_with(sim, steps, loss, terms, Tape::Budget(self.tape_budget))?;
+        let terms: Vec<Term> = terms.iter().cloned().map(Term::Carry).collect();
+        let g = gradient_with(sim, steps, loss, &terms, Tape::Budget(self.tape_budget))?;
         // The simulation's scene carries the rollout's Θ, which the skill's adjoint needs.
         let tool = &sim.scene.colliders[self.tool];
         let g_u = g
