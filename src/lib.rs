@@ -38,6 +38,8 @@
 pub type Real = f64;
 
 pub mod adjoint;
+#[cfg(feature = "lab")]
+pub mod calibrate;
 pub mod components;
 pub mod error;
 #[cfg(feature = "lab")]

@@ -25,6 +25,14 @@ enum Command {
     /// Compare adjoint gradients with central differences (f64), per parameter.
     #[cfg(feature = "lab")]
     Gradcheck(cli::gradcheck::Args),
+    /// Fit friction angle, stiffness or contact friction to observed height maps or point
+    /// clouds through the adjoint; writes fitted.ron, report.md, loss.svg, calibration.rrd.
+    #[cfg(feature = "lab")]
+    Calibrate(cli::calibrate::Args),
+    /// Write what a camera would see of a scene at a step: a height map (.csv) or a point
+    /// cloud (.ply), with optional noise (synthetic observations for `calibrate`).
+    #[cfg(feature = "lab")]
+    Observe(cli::calibrate::ObserveArgs),
     /// Optimise the skill parameters of the scene's tool (gradient descent, and the baselines
     /// on the same rollout budget); writes metrics.csv, summary.json, indicator.svg, best.rrd.
     #[cfg(feature = "lab")]
@@ -44,6 +52,10 @@ fn main() {
         Command::Bench(a) => cli::bench::run(a),
         #[cfg(feature = "lab")]
         Command::Gradcheck(a) => cli::gradcheck::run(a),
+        #[cfg(feature = "lab")]
+        Command::Calibrate(a) => cli::calibrate::run(a),
+        #[cfg(feature = "lab")]
+        Command::Observe(a) => cli::calibrate::observe(a),
         #[cfg(feature = "lab")]
         Command::Optimize(a) => cli::optimize::run(a),
         #[cfg(feature = "lab")]

@@ -208,6 +208,29 @@ impl Recorder {
         Ok(())
     }
 
+    /// Logs points that do not change (an observation to compare the run with) under `entity`,
+    /// in one colour.
+    pub fn static_points(
+        &mut self,
+        entity: &str,
+        points: &[glam::DVec3],
+        colour: [u8; 4],
+    ) -> anyhow::Result<()> {
+        let pts: Vec<[f32; 3]> = points
+            .iter()
+            .map(|p| [p.x as f32, p.y as f32, p.z as f32])
+            .collect();
+        self.rec.log_static(
+            entity,
+            &Points3D::new(pts)
+                .with_colors([rerun::Color::from_unmultiplied_rgba(
+                    colour[0], colour[1], colour[2], colour[3],
+                )])
+                .with_radii([self.point_radius]),
+        )?;
+        Ok(())
+    }
+
     /// Flushes and moves the recording to its final name.
     pub fn finish(self) -> anyhow::Result<()> {
         self.rec.flush_blocking()?;

@@ -1,0 +1,341 @@
+//! Observations to calibrate from, read and written:
+//!
+//! - **a point cloud**, any PLY with a `vertex` element whose `x`, `y`, `z` are float or double
+//!   (ASCII or binary: what `simulate --save-state`, Open3D or a depth-camera pipeline write);
+//! - **a height map**, a CSV of heights in metres, one row per pixel row along z, one column
+//!   per pixel along x, `nan` (or an empty field) where the camera saw nothing. Comment lines
+//!   starting with `#` carry the grid: `# pixel=0.0025 origin_x=0.00125 origin_z=0.00125`
+//!   (metres; the origin is pixel (0, 0)'s centre).
+//!
+//! Each is tied to a global step: `FILE@STEP`, or the scene's horizon without one. Every failure
+//! is one line naming the file and what is wrong.
+
+use crate::math::heightfield::HeightGrid;
+use glam::DVec3;
+use std::path::{Path, PathBuf};
+
+/// The largest observation file read (bytes): a million-point binary cloud is about 12 MB, a
+/// 4096² height map about 200 MB of text.
+pub const MAX_OBSERVATION_BYTES: u64 = 1 << 30;
+
+/// What was observed.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Observation {
+    /// Surface heights over a grid (m), NaN where unseen.
+    Heights { grid: HeightGrid, heights: Vec<f64> },
+    /// Points on or in the powder (m).
+    Cloud(Vec<DVec3>),
+}
+
+/// An observation file and the global step it shows.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Observed {
+    pub path: PathBuf,
+    /// `None`: the scene's horizon.
+    pub step: Option<usize>,
+    pub what: Observation,
+}
+
+impl Observation {
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Observation::Heights { .. } => "height map",
+            Observation::Cloud(_) => "point cloud",
+        }
+    }
+}
+
+/// Parses `FILE` or `FILE@STEP` and reads the file.
+pub fn read_arg(arg: &str) -> Result<Observed, String> {
+    let (file, step) = match arg.rsplit_once('@') {
+        Some((f, s)) if !s.is_empty() && s.chars().all(|c| c.is_ascii_digit()) => (
+            f,
+            Some(s.parse::<usize>().map_err(|_| {
+                format!(
+                    "{arg}: the step after '@' is too large, expected a global step of the scene"
+                )
+            })?),
+        ),
+        _ => (arg, None),
+    };
+    let path = PathBuf::from(file);
+    Ok(Observed {
+        what: read(&path)?,
+        path,
+        step,
+    })
+}
+
+/// Reads an observation by its extension (`.ply`, `.csv`).
+pub fn read(path: &Path) -> Result<Observation, String> {
+    let shown = path.display();
+    let meta = std::fs::metadata(path).map_err(|e| format!("{shown}: cannot read it: {e}"))?;
+    if meta.len() > MAX_OBSERVATION_BYTES {
+        return Err(format!(
+            "{shown}: {} bytes, over the {} the reader takes; downsample the observation",
+            meta.len(),
+            MAX_OBSERVATION_BYTES
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(|e| format!("{shown}: cannot read it: {e}"))?;
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase());
+    match ext.as_deref() {
+        Some("ply") => read_ply(&bytes).map_err(|e| format!("{shown}: {e}")),
+        Some("csv") => read_csv(&bytes).map_err(|e| format!("{shown}: {e}")),
+        _ => Err(format!(
+            "{shown}: unknown observation type; expected a point cloud (.ply) or a height map (.csv)"
+        )),
+    }
+}
+
+fn read_ply(bytes: &[u8]) -> Result<Observation, String> {
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::{DefaultElement, Property};
+    let ply = Parser::<DefaultElement>::new()
+        .read_ply(&mut &bytes[..])
+        .map_err(|e| format!("not a PLY file this reader understands: {e}"))?;
+    let vertices = ply
+        .payload
+        .get("vertex")
+        .ok_or("the PLY has no 'vertex' element; expected points with x, y, z")?;
+    if vertices.is_empty() {
+        return Err("the PLY has no vertices; expected at least one observed point".into());
+    }
+    let coord = |v: &DefaultElement, k: &str, i: usize| -> Result<f64, String> {
+        match v.get(k) {
+            Some(Property::Float(f)) => Ok(*f as f64),
+            Some(Property::Double(f)) => Ok(*f),
+            Some(_) => Err(format!(
+                "vertex property '{k}' is not a float or double; expected coordinates in metres"
+            )),
+            None => Err(format!("vertex {i} has no '{k}'; expected x, y and z")),
+        }
+    };
+    let mut pts = Vec::with_capacity(vertices.len());
+    for (i, v) in vertices.iter().enumerate() {
+        let p = DVec3::new(coord(v, "x", i)?, coord(v, "y", i)?, coord(v, "z", i)?);
+        if !p.is_finite() {
+            return Err(format!(
+                "vertex {i} is not finite ({p}); remove the invalid points (a depth camera's holes) first"
+            ));
+        }
+        pts.push(p);
+    }
+    Ok(Observation::Cloud(pts))
+}
+
+fn read_csv(bytes: &[u8]) -> Result<Observation, String> {
+    let text = std::str::from_utf8(bytes).map_err(|e| {
+        format!(
+            "not UTF-8 text at byte {}; expected a CSV height map",
+            e.valid_up_to()
+        )
+    })?;
+    let (mut pixel, mut ox, mut oz) = (None, None, None);
+    let mut rows: Vec<Vec<f64>> = Vec::new();
+    for (ln, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if let Some(c) = line.strip_prefix('#') {
+            for tok in c.split_whitespace() {
+                if let Some((k, v)) = tok.split_once('=') {
+                    let slot = match k {
+                        "pixel" => &mut pixel,
+                        "origin_x" => &mut ox,
+                        "origin_z" => &mut oz,
+                        _ => continue,
+                    };
+                    let x: f64 = v.parse().map_err(|_| {
+                        format!("line {}: {k}={v} is not a number (metres)", ln + 1)
+                    })?;
+                    *slot = Some(x);
+                }
+            }
+            continue;
+        }
+        if line.is_empty() {
+            continue;
+        }
+        let row = line
+            .split(',')
+            .enumerate()
+            .map(|(col, f)| {
+                let f = f.trim();
+                if f.is_empty() || f.eq_ignore_ascii_case("nan") {
+                    return Ok(f64::NAN);
+                }
+                match f.parse::<f64>() {
+                    Ok(v) if v.is_finite() => Ok(v),
+                    _ => Err(format!(
+                        "line {}, column {}: '{}' is not a height in metres (use nan for an unseen pixel)",
+                        ln + 1,
+                        col + 1,
+                        crate::scene::parse::bounded(f)
+                    )),
+                }
+            })
+            .collect::<Result<Vec<f64>, String>>()?;
+        if let Some(first) = rows.first() {
+            if row.len() != first.len() {
+                return Err(format!(
+                    "line {}: {} values, but the first row has {}; every row needs one per pixel along x",
+                    ln + 1,
+                    row.len(),
+                    first.len()
+                ));
+            }
+        }
+        rows.push(row);
+    }
+    let need = |v: Option<f64>, k: &str| {
+        v.ok_or_else(|| {
+            format!("no '{k}=' in a '#' line; the grid needs '# pixel=P origin_x=X origin_z=Z' (metres)")
+        })
+    };
+    let (pixel, ox, oz) = (
+        need(pixel, "pixel")?,
+        need(ox, "origin_x")?,
+        need(oz, "origin_z")?,
+    );
+    if !(pixel.is_finite() && pixel > 0.0) {
+        return Err(format!("pixel={pixel} must be a positive length in metres"));
+    }
+    if !(ox.is_finite() && oz.is_finite()) {
+        return Err("origin_x and origin_z must be finite (metres)".into());
+    }
+    if rows.is_empty() {
+        return Err("no rows of heights; expected one row per pixel row along z".into());
+    }
+    let nx = rows[0].len();
+    let heights: Vec<f64> = rows.concat();
+    if heights.iter().all(|h| h.is_nan()) {
+        return Err("every pixel is nan; the map shows nothing to calibrate against".into());
+    }
+    Ok(Observation::Heights {
+        grid: HeightGrid {
+            origin: [ox, oz],
+            pixel,
+            nx,
+            nz: rows.len(),
+        },
+        heights,
+    })
+}
+
+/// The CSV text of a height map (see the module docs), heights to the micrometre.
+pub fn heights_csv(grid: &HeightGrid, heights: &[f64]) -> String {
+    let mut s = format!(
+        "# powderlab height map: heights in metres, rows along z, columns along x, nan unseen\n# pixel={} origin_x={} origin_z={}\n",
+        grid.pixel, grid.origin[0], grid.origin[1]
+    );
+    for row in heights.chunks(grid.nx) {
+        let cells: Vec<String> = row
+            .iter()
+            .map(|h| {
+                if h.is_finite() {
+                    format!("{h:.6}")
+                } else {
+                    "nan".into()
+                }
+            })
+            .collect();
+        s.push_str(&cells.join(","));
+        s.push('\n');
+    }
+    s
+}
+
+/// A binary PLY of points as float x, y, z: the layout of a depth camera's cloud.
+pub fn cloud_ply(points: &[DVec3]) -> Vec<u8> {
+    let mut out = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment powderlab observation\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nend_header\n",
+        points.len()
+    )
+    .into_bytes();
+    for p in points {
+        for c in [p.x, p.y, p.z] {
+            out.extend_from_slice(&(c as f32).to_le_bytes());
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp(name: &str, bytes: &[u8]) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("powderlab-obs-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p
+    }
+
+    #[test]
+    fn height_maps_and_clouds_round_trip() {
+        let grid = HeightGrid {
+            origin: [0.001, -0.002],
+            pixel: 0.0025,
+            nx: 3,
+            nz: 2,
+        };
+        let h = vec![0.01, f64::NAN, 0.012345, 0.0, 0.02, 0.03];
+        let p = tmp("h.csv", heights_csv(&grid, &h).as_bytes());
+        let Observation::Heights {
+            grid: g2,
+            heights: h2,
+        } = read(&p).unwrap()
+        else {
+            panic!("a height map")
+        };
+        assert_eq!(g2, grid);
+        for (a, b) in h.iter().zip(&h2) {
+            assert!((a.is_nan() && b.is_nan()) || (a - b).abs() < 1e-9);
+        }
+        let pts = vec![DVec3::new(0.5, 0.25, -0.125), DVec3::new(1.0, 2.0, 3.0)];
+        let q = tmp("c.ply", &cloud_ply(&pts));
+        assert_eq!(read(&q).unwrap(), Observation::Cloud(pts));
+    }
+
+    #[test]
+    fn bad_observations_get_one_line_naming_the_file() {
+        let cases: [(&str, &[u8], &str); 6] = [
+            ("a.csv", b"0.1,0.2\n", "no 'pixel='"),
+            (
+                "b.csv",
+                b"# pixel=0.01 origin_x=0 origin_z=0\n0.1,0.2\n0.3\n",
+                "line 3: 1 values",
+            ),
+            (
+                "c.csv",
+                b"# pixel=0.01 origin_x=0 origin_z=0\n0.1,x\n",
+                "line 2, column 2",
+            ),
+            (
+                "d.ply",
+                b"ply\nformat ascii 1.0\nelement face 0\nend_header\n",
+                "no 'vertex'",
+            ),
+            ("e.xyz", b"1 2 3\n", "unknown observation type"),
+            (
+                "f.csv",
+                b"# pixel=-1 origin_x=0 origin_z=0\n0.1\n",
+                "pixel=-1",
+            ),
+        ];
+        for (name, bytes, want) in cases {
+            let p = tmp(name, bytes);
+            let e = read(&p).unwrap_err();
+            assert!(e.contains(name) && e.contains(want), "{name}: {e}");
+            assert!(!e.contains('\n'), "{e}");
+        }
+        let e = read_arg("/nonexistent/obs.ply@7").unwrap_err();
+        assert!(
+            e.contains("/nonexistent/obs.ply") && e.contains("cannot read"),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,162 @@
+//! Calibration from observations (`powderlab calibrate`): the gradient of an observation loss
+//! with respect to the fitted parameters against central differences, recovery of a friction
+//! angle on a tiny scene, and one-line refusals of bad observation files.
+#![cfg(feature = "lab")]
+
+mod common;
+
+use powderlab::calibrate::observation::Observed;
+use powderlab::calibrate::{self, params, AdamConfig, Calibration};
+use std::path::PathBuf;
+use std::process::Command;
+
+/// The tiny collapse with its friction angle set, observed as a height map at `step` (no noise:
+/// the test checks the optimiser and the gradient, not the noise).
+fn observed(truth: f64, step: usize, heights: bool) -> Observed {
+    let mut scene = common::load_test_scene("calibration_tiny.ron");
+    let p = params::parse(&scene, &["friction_deg".into()], &[]).unwrap();
+    p[0].apply(&mut scene, truth);
+    Observed {
+        path: PathBuf::from(format!("tiny@{step}")),
+        step: Some(step),
+        what: calibrate::observe(&scene, step, heights, 0.005, 0.0, 1, Some(1)).unwrap(),
+    }
+}
+
+fn problem(fit: &[&str], obs: &[Observed]) -> Calibration {
+    let scene = common::load_test_scene("calibration_tiny.ron");
+    let names: Vec<String> = fit.iter().map(|s| s.to_string()).collect();
+    let p = params::parse(&scene, &names, &[]).unwrap();
+    let mut c = Calibration::new(&scene, p, obs, None).unwrap();
+    c.threads = Some(1);
+    c
+}
+
+/// A central difference of 1e-4 in unit coordinates (0.005° of friction angle, 0.03 % of E):
+/// the flow's contact switches make the loss rough below about 1e-5, and the curvature's error
+/// at 1e-4 is under 1e-3 relative on these losses.
+const H: f64 = 1e-4;
+/// Relative agreement of the adjoint with the central difference.
+const TOL: f64 = 2e-2;
+
+#[test]
+fn observation_losses_gradient_matches_central_differences_through_the_collapse() {
+    // A height map midway and a point cloud at the end: a sequence, so the intermediate term's
+    // gradient enters the reverse sweep at its step.
+    let obs = [observed(36.0, 25, true), observed(36.0, 50, false)];
+    let cal = problem(&["friction_deg", "floor.friction", "youngs_modulus"], &obs);
+    let u = vec![0.45, 0.3, 0.5];
+    let e = cal.evaluate(&u, true).unwrap();
+    let g = e.grad.clone().unwrap();
+    let fwd = cal.evaluate(&u, false).unwrap().loss;
+    assert!(
+        (fwd - e.loss).abs() <= 1e-12 * e.loss.abs(),
+        "taped {} vs forward {fwd}",
+        e.loss
+    );
+    for i in 0..u.len() {
+        let (mut up, mut dn) = (u.clone(), u.clone());
+        up[i] += H;
+        dn[i] -= H;
+        let fd = (cal.evaluate(&up, false).unwrap().loss - cal.evaluate(&dn, false).unwrap().loss)
+            / (2.0 * H);
+        let rel = (fd - g[i]).abs() / fd.abs().max(g[i].abs()).max(1e-12);
+        assert!(
+            rel < TOL,
+            "{}: adjoint {:e}, central difference {fd:e} (relative {rel:e})",
+            cal.params[i].label,
+            g[i]
+        );
+    }
+}
+
+#[test]
+fn adam_recovers_a_friction_angle_on_a_tiny_scene() {
+    let truth = 32.0;
+    let mut cal = problem(&["friction_deg"], &[observed(truth, 50, true)]);
+    cal.params[0].apply(&mut cal.scene, 22.0);
+    let u0 = cal.start();
+    let trace = calibrate::adam(&u0, 60.0, AdamConfig::default(), |_, u, g| {
+        cal.evaluate(u, g)
+    })
+    .unwrap();
+    let best = trace
+        .iter()
+        .min_by(|a, b| a.loss.total_cmp(&b.loss))
+        .unwrap();
+    assert!(
+        (best.values[0] - truth).abs() < 1.0,
+        "fitted {} for a true {truth} from 22 (losses {:?})",
+        best.values[0],
+        trace.iter().map(|e| e.loss).collect::<Vec<_>>()
+    );
+    assert!(best.loss < 0.1 * trace[0].loss);
+}
+
+fn powderlab(args: &[&str]) -> (i32, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn bad_or_mismatched_observations_are_refused_in_one_line() {
+    let dir = std::env::temp_dir().join(format!("powderlab-calib-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = common::scene_path("calibration_collapse.ron");
+    let scene = scene.to_str().unwrap();
+    let malformed = dir.join("malformed.csv");
+    std::fs::write(
+        &malformed,
+        "# pixel=0.0025 origin_x=0 origin_z=0\n0.01,0.02\n0.01\n",
+    )
+    .unwrap();
+    // A cloud in millimetres: every point far outside the 12 cm domain.
+    let mm = dir.join("millimetres.ply");
+    let pts: Vec<glam::DVec3> = (0..50)
+        .map(|i| glam::DVec3::new(10.0 + i as f64, 12.0, 10.0))
+        .collect();
+    std::fs::write(&mm, powderlab::calibrate::observation::cloud_ply(&pts)).unwrap();
+    let cases = [
+        (malformed.to_str().unwrap().to_string(), "line 3: 1 values"),
+        (
+            mm.to_str().unwrap().to_string(),
+            "outside the scene's domain",
+        ),
+        (
+            format!("{}@x", dir.join("none.csv").display()),
+            "cannot read",
+        ),
+    ];
+    for (obs, want) in &cases {
+        let (code, err) = powderlab(&[
+            "calibrate",
+            scene,
+            "--observed",
+            obs,
+            "--fit",
+            "friction_deg",
+            "--out",
+            dir.join("out").to_str().unwrap(),
+        ]);
+        assert_eq!(code, 2, "{obs}: {err}");
+        let file = obs.split('@').next().unwrap();
+        assert!(err.contains(file) && err.contains(want), "{obs}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    }
+    let (code, err) = powderlab(&[
+        "calibrate",
+        scene,
+        "--observed",
+        malformed.to_str().unwrap(),
+        "--fit",
+        "cohesion",
+    ]);
+    assert_eq!(code, 2);
+    assert!(err.contains("--fit cohesion"), "{err}");
+}
