@@ -160,3 +160,74 @@ fn bad_or_mismatched_observations_are_refused_in_one_line() {
     assert_eq!(code, 2);
     assert!(err.contains("--fit cohesion"), "{err}");
 }
+
+#[test]
+fn calibrate_writes_a_loadable_fitted_scene_and_resumes_from_its_journal() {
+    let dir = std::env::temp_dir().join(format!("powderlab-calib-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = common::test_scene_path("calibration_tiny.ron");
+    let scene = scene.to_str().unwrap();
+    let obs = dir.join("pile.csv");
+    let (code, err) = powderlab(&[
+        "observe",
+        scene,
+        "--out",
+        obs.to_str().unwrap(),
+        "--set",
+        "friction_deg=35",
+        "--noise",
+        "0.0005",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let out = dir.join("run");
+    let args = [
+        "calibrate",
+        scene,
+        "--observed",
+        obs.to_str().unwrap(),
+        "--fit",
+        "friction_deg",
+        "--budget",
+        "8",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let (code, err) = powderlab(&args);
+    assert_eq!(code, 0, "{err}");
+    for f in [
+        "fitted.ron",
+        "report.md",
+        "loss.svg",
+        "trace.csv",
+        "summary.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    #[cfg(feature = "rerun")]
+    common::assert_rrd_has(
+        &out.join("calibration.rrd"),
+        &["/world/powder/column", "/world/observed/0"],
+    );
+    let fitted = powderlab::scene::Scene::load(out.join("fitted.ron")).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let best = summary["best"]["values"][0].as_f64().unwrap();
+    let p = params::parse(&fitted, &["friction_deg".into()], &[]).unwrap();
+    assert_eq!(p[0].value(&fitted), best);
+    // The same settings again: every rollout is read back from the journal, the same answer.
+    let (code, err) = powderlab(&args);
+    assert_eq!(code, 0, "{err}");
+    let again: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(again["best"], summary["best"]);
+    // The trace, then the curvature's 1 + 2k² forward rollouts (k = 1).
+    assert_eq!(again["replayed"], again["rollouts"].as_u64().unwrap() + 3);
+    // Other settings in the same folder are refused.
+    let mut other = args.to_vec();
+    other[7] = "12";
+    let (code, err) = powderlab(&other);
+    assert_eq!(code, 2);
+    assert!(err.contains("other settings"), "{err}");
+}

@@ -164,7 +164,8 @@ pub fn run(a: Args) -> Result<()> {
     let curvature_cost = if a.no_curvature {
         0.0
     } else {
-        2.0 * cal.params.len() as f64 * (1.0 + powderlab::optim::report::BACKWARD_COST)
+        let k = cal.params.len() as f64;
+        1.0 + 2.0 * k * k
     };
     let pb = super::bar((a.budget + curvature_cost).ceil() as u64, a.quiet);
     pb.set_message(a.method.clone());
@@ -204,10 +205,9 @@ pub fn run(a: Args) -> Result<()> {
         Some(calibrate::identifiability(
             &cal,
             &best.u,
-            best.loss,
             calibrate::CURVATURE_STEP,
             |u| {
-                let e = journal.eval(&cal, "curvature", k, u, true)?;
+                let e = journal.eval(&cal, "curvature", k, u, false)?;
                 k += 1;
                 step(&e, &mut spent);
                 Ok(e)
@@ -287,7 +287,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     if let Some(id) = &ident {
         md.push_str(&format!(
-            "\nCurvature of the loss in unit coordinates (central differences of the adjoint gradient, step {}): eigenvalues {:?}.\n",
+            "\nCurvature of the loss in unit coordinates (central second differences of the loss, step {}): eigenvalues {:?}.\n",
             id.step,
             id.eigenvalues.iter().map(|l| format!("{l:.3e}")).collect::<Vec<_>>()
         ));

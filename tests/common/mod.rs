@@ -44,6 +44,14 @@ pub fn assert_finite(sim: &mut Simulation) {
     }
 }
 
+/// The path of a scene of `tests/scenes`.
+pub fn test_scene_path(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests")
+        .join("scenes")
+        .join(name)
+}
+
 /// A scene of `tests/scenes`.
 pub fn load_test_scene(name: &str) -> Scene {
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))
