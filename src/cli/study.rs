@@ -110,9 +110,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "refine" {
         return refine_cmd(a);
     }
+    if a.study == "calibration" {
+        return calibration_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions or refine",
+            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine or calibration",
             a.study
         );
     }
@@ -443,6 +446,56 @@ fn refine_cmd(a: Args) -> Result<()> {
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("refinement.md"), md.as_bytes())?;
     print_page(&a, &md, start, "refinement.md", json!({ "cells": cells }));
+    Ok(())
+}
+
+/// `powderlab study calibration`: recovery of known parameters from noisy synthetic
+/// observations, Adam on the adjoint against CMA-ES at equal compute.
+fn calibration_cmd(a: Args) -> Result<()> {
+    use powderlab::study::calibration;
+    if a.seeds == 0 || a.budget == 0 {
+        bail!("study calibration: --seeds and --budget must be at least 1");
+    }
+    let budget = a.budget as f64;
+    let runs = calibration::CASES.len() * 5 * a.seeds * 2;
+    let total = runs as f64 * budget + 2.0 * budget + 6.0 * 3.4;
+    let pb = super::bar(total.ceil() as u64, a.json);
+    let pb2 = pb.clone();
+    let done = std::sync::Mutex::new(0.0f64);
+    let progress = move |c: f64| {
+        let mut d = done.lock().expect("lock");
+        *d += c;
+        pb2.set_position(d.round() as u64);
+    };
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(a.threads.unwrap_or(0))
+        .build_global()
+        .context("starting the worker threads")?;
+    let start = Instant::now();
+    // Each rollout runs on one thread; the pairs run side by side.
+    let outcome = calibration::run(
+        &a.out.join("calibration"),
+        a.seeds,
+        budget,
+        Some(1),
+        &progress,
+    )?;
+    pb.finish_and_clear();
+    let command = format!(
+        "powderlab study calibration --seeds {} --budget {}",
+        a.seeds, a.budget
+    );
+    powderlab::util::create_output_dir(&a.results, "--results")?;
+    let machine = powderlab::study::optimizers::machine();
+    let md = calibration::report(&outcome, &command, &machine, budget, &a.results)?;
+    powderlab::util::write_atomic(&a.results.join("calibration.md"), md.as_bytes())?;
+    print_page(
+        &a,
+        &md,
+        start,
+        "calibration.md and calibration.svg",
+        json!({ "runs": outcome.runs }),
+    );
     Ok(())
 }
 

@@ -20,6 +20,7 @@
 //! configuration beats on both run time and error.
 
 pub mod analysis;
+pub mod calibration;
 pub mod directions;
 pub mod growth;
 pub mod landscape;
