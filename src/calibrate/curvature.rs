@@ -61,17 +61,22 @@ pub fn identifiability(
         minus[i] = eval(&at(&[(i, -1.0)]))?.loss;
     }
     let mut h = vec![vec![0.0; d]; d];
+    for (i, row) in h.iter_mut().enumerate() {
+        row[i] = (plus[i] - 2.0 * l0 + minus[i]) / (step * step);
+    }
+    let mut cross = Vec::new();
     for i in 0..d {
-        h[i][i] = (plus[i] - 2.0 * l0 + minus[i]) / (step * step);
         for j in 0..i {
             let pp = eval(&at(&[(i, 1.0), (j, 1.0)]))?.loss;
             let pm = eval(&at(&[(i, 1.0), (j, -1.0)]))?.loss;
             let mp = eval(&at(&[(i, -1.0), (j, 1.0)]))?.loss;
             let mm = eval(&at(&[(i, -1.0), (j, -1.0)]))?.loss;
-            let v = (pp - pm - mp + mm) / (4.0 * step * step);
-            h[i][j] = v;
-            h[j][i] = v;
+            cross.push((i, j, (pp - pm - mp + mm) / (4.0 * step * step)));
         }
+    }
+    for (i, j, v) in cross {
+        h[i][j] = v;
+        h[j][i] = v;
     }
     let (u, loss) = (c, l0);
     let (eigenvalues, eigenvectors) = symmetric_eigen(&h);

@@ -31,8 +31,10 @@ pub struct Args {
     /// Start NAME=VALUE instead of the scene's value.
     #[arg(long)]
     start: Vec<String>,
-    /// adam (the adjoint gradient) or cmaes (the forward loss only).
-    #[arg(long, default_value = "adam")]
+    /// cmaes (the forward loss only; the default: it recovered friction angle and floor
+    /// friction better than the adjoint at equal compute, docs/results/calibration.md) or adam
+    /// (Adam on the adjoint gradient).
+    #[arg(long, default_value = "cmaes")]
     method: String,
     /// Compute in forward rollouts; a gradient rollout counts 1 + the backward pass's cost.
     #[arg(long, default_value_t = 40.0)]
@@ -388,7 +390,8 @@ pub struct ObserveArgs {
     /// The global step observed (default the scene's last).
     #[arg(long)]
     step: Option<usize>,
-    /// Pixel size of a height map (m; default the grid spacing).
+    /// Pixel size of a height map (m; default the particle spacing, about the millimetre a
+    /// depth camera above a bench resolves).
     #[arg(long)]
     pixel: Option<f64>,
     /// Standard deviation of Gaussian noise on each height or coordinate (m).
@@ -419,7 +422,13 @@ pub fn observe(a: ObserveArgs) -> Result<()> {
         ),
     };
     powderlab::util::check_output_file(&a.out, "--out")?;
-    let pixel = a.pixel.unwrap_or(scene.simulation.dx);
+    let pixel = a.pixel.unwrap_or_else(|| {
+        scene
+            .bodies
+            .iter()
+            .map(|b| scene.particle_spacing(b))
+            .fold(scene.simulation.dx, f64::min)
+    });
     if !(pixel.is_finite() && pixel > 0.0) {
         bail!("--pixel {pixel}: expected a positive length in metres");
     }
