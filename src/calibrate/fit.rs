@@ -92,46 +92,23 @@ pub fn cmaes(
     u0: &[f64],
     budget: usize,
     seed: u64,
-    eval: impl FnMut(usize, &[f64], bool) -> anyhow::Result<Eval>,
+    mut eval: impl FnMut(usize, &[f64], bool) -> anyhow::Result<Eval>,
 ) -> anyhow::Result<Vec<Eval>> {
-    use std::sync::Mutex;
-    let out: Mutex<Vec<Eval>> = Mutex::new(Vec::new());
-    let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
-    let eval = Mutex::new(eval);
-    out.lock()
-        .expect("lock")
-        .push((eval.lock().expect("lock"))(0, u0, false)?);
-    let f = |x: &cmaes::DVector<f64>| -> f64 {
-        let mut o = out.lock().expect("lock");
-        let i = o.len();
-        if i >= budget || failure.lock().expect("lock").is_some() {
-            return f64::MAX;
-        }
-        let u: Vec<f64> = x.iter().map(|v| reflect01(*v)).collect();
-        match (eval.lock().expect("lock"))(i, &u, false) {
-            Ok(e) => {
-                let l = e.loss;
-                o.push(e);
-                l
-            }
-            Err(e) => {
-                failure.lock().expect("lock").get_or_insert(e);
-                f64::NAN
-            }
-        }
-    };
-    let mut st = cmaes::CMAESOptions::new(u0.to_vec(), CMA_SIGMA0)
-        .seed(seed)
-        .build(f)
-        .map_err(|e| anyhow::anyhow!("CMA-ES options: {e:?}"))?;
-    while out.lock().expect("lock").len() < budget {
-        let _ = st.next();
-        if let Some(e) = failure.lock().expect("lock").take() {
-            return Err(e);
-        }
-    }
-    drop(st);
-    Ok(out.into_inner().expect("lock"))
+    let mut out = vec![eval(0, u0, false)?];
+    crate::optim::cma::run_sequential(
+        u0.to_vec(),
+        CMA_SIGMA0,
+        seed,
+        budget.saturating_sub(1),
+        |x| {
+            let u: Vec<f64> = x.iter().map(|v| reflect01(*v)).collect();
+            let e = eval(out.len(), &u, false)?;
+            let l = e.loss;
+            out.push(e);
+            Ok(l)
+        },
+    )?;
+    Ok(out)
 }
 
 #[cfg(test)]

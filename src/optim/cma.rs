@@ -32,6 +32,51 @@ impl Default for CmaConfig {
     }
 }
 
+/// Runs CMA-ES (the `cmaes` crate, its default population for the dimension) from `x0` with
+/// step size `sigma0`, one sample at a time in the sampler's order, until `eval` has scored
+/// `budget` samples. `eval` gets each raw sample (the caller maps it into its box) and returns
+/// its loss; its first error stops the run and is returned. A termination criterion of the
+/// crate ends nothing: the method gets its whole budget.
+pub fn run_sequential(
+    x0: Vec<f64>,
+    sigma0: f64,
+    seed: u64,
+    budget: usize,
+    eval: impl FnMut(&[f64]) -> anyhow::Result<f64>,
+) -> anyhow::Result<()> {
+    use std::sync::Mutex;
+    let done = Mutex::new(0usize);
+    let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    let eval = Mutex::new(eval);
+    let f = |x: &cmaes::DVector<f64>| -> f64 {
+        let mut n = done.lock().expect("lock");
+        if *n >= budget || failure.lock().expect("lock").is_some() {
+            return f64::MAX;
+        }
+        match (eval.lock().expect("lock"))(x.as_slice()) {
+            Ok(l) => {
+                *n += 1;
+                l
+            }
+            Err(e) => {
+                failure.lock().expect("lock").get_or_insert(e);
+                f64::NAN
+            }
+        }
+    };
+    let mut st = cmaes::CMAESOptions::new(x0, sigma0)
+        .seed(seed)
+        .build(f)
+        .map_err(|e| anyhow::anyhow!("CMA-ES options: {e:?}"))?;
+    while *done.lock().expect("lock") < budget {
+        let _ = st.next();
+        if let Some(e) = failure.lock().expect("lock").take() {
+            return Err(e);
+        }
+    }
+    Ok(())
+}
+
 /// Maps `x ∈ R` into `[−1, 1]` by reflecting at ±1 (a triangle wave of period 4).
 pub fn reflect(x: f64) -> f64 {
     if (-1.0..=1.0).contains(&x) {

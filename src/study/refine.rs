@@ -242,39 +242,21 @@ fn cmaes(
     seed: usize,
     budget: usize,
 ) -> anyhow::Result<Vec<Rollout>> {
-    let out: Mutex<Vec<Rollout>> = Mutex::new(Vec::new());
-    let failure: Mutex<Option<anyhow::Error>> = Mutex::new(None);
-    let f = |x: &cmaes::DVector<f64>| -> f64 {
-        let mut o = out.lock().expect("lock");
-        let i = o.len();
-        if i >= budget || failure.lock().expect("lock").is_some() {
-            return f64::MAX;
-        }
-        let w: Vec<f64> = x.iter().map(|v| reflect(*v)).collect();
-        match s.get(p, knots, "cmaes", seed, i, &w, false) {
-            Ok(r) => {
-                let l = r.loss;
-                o.push(r);
-                l
-            }
-            Err(e) => {
-                failure.lock().expect("lock").get_or_insert(e);
-                f64::NAN
-            }
-        }
-    };
-    let mut st = cmaes::CMAESOptions::new(vec![0.0; 6 * knots], CMA_SIGMA0)
-        .seed(0xC3A_0000 + seed as u64)
-        .build(f)
-        .map_err(|e| anyhow::anyhow!("CMA-ES options: {e:?}"))?;
-    while out.lock().expect("lock").len() < budget {
-        let _ = st.next();
-        if let Some(e) = failure.lock().expect("lock").take() {
-            return Err(e);
-        }
-    }
-    drop(st);
-    Ok(out.into_inner().expect("lock"))
+    let mut out: Vec<Rollout> = Vec::new();
+    crate::optim::cma::run_sequential(
+        vec![0.0; 6 * knots],
+        CMA_SIGMA0,
+        0xC3A_0000 + seed as u64,
+        budget,
+        |x| {
+            let w: Vec<f64> = x.iter().map(|v| reflect(*v)).collect();
+            let r = s.get(p, knots, "cmaes", seed, out.len(), &w, false)?;
+            let l = r.loss;
+            out.push(r);
+            Ok(l)
+        },
+    )?;
+    Ok(out)
 }
 
 /// The methods, in the page's order.
