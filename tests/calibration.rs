@@ -159,6 +159,22 @@ fn bad_or_mismatched_observations_are_refused_in_one_line() {
     ]);
     assert_eq!(code, 2);
     assert!(err.contains("--fit cohesion"), "{err}");
+    // A search box reaching outside what a scene may hold is refused before any rollout.
+    let (code, err) = powderlab(&[
+        "calibrate",
+        scene,
+        "--observed",
+        malformed.to_str().unwrap(),
+        "--fit",
+        "friction_deg",
+        "--bounds",
+        "friction_deg=20:95",
+    ]);
+    assert_eq!(code, 2);
+    assert!(
+        err.contains("--bounds sand.friction_deg") && err.contains("95"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -97,6 +97,19 @@ pub fn run(a: Args) -> Result<()> {
     if let Err(e) = scene.validate() {
         bail!("--start: the scene with these values is refused: {e}");
     }
+    // Every point of the search box must be a scene the loader accepts.
+    for p in &fit {
+        for v in [p.lo, p.hi] {
+            let mut trial = scene.clone();
+            p.apply(&mut trial, v);
+            if let Err(e) = trial.validate() {
+                bail!(
+                    "--bounds {}: the bound {v} is refused ({e}); give bounds inside the admissible range",
+                    p.label
+                );
+            }
+        }
+    }
     if !matches!(a.method.as_str(), "adam" | "cmaes") {
         bail!("--method {}: expected adam or cmaes", a.method);
     }
