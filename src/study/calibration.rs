@@ -385,23 +385,29 @@ over the pairs that Adam's error is lower. The backward pass's cost was measured
         let ec: Vec<f64> = cma.iter().map(|r| r.error).collect();
         let (ma, sa) = mean_std(&ea);
         let (mc, sc) = mean_std(&ec);
-        let within = ea.iter().filter(|e| **e <= case.tolerance).count();
-        let truths_within = case
-            .truths
-            .iter()
-            .filter(|t| {
-                adam.iter()
-                    .filter(|r| r.truth == **t)
-                    .all(|r| r.error <= case.tolerance)
-            })
-            .count();
+        // Pairs within the tolerance, and true values with every start within it.
+        let recovered = |runs: &[&Run]| {
+            let pairs = runs.iter().filter(|r| r.error <= case.tolerance).count();
+            let truths = case
+                .truths
+                .iter()
+                .filter(|t| {
+                    runs.iter()
+                        .filter(|r| r.truth == **t)
+                        .all(|r| r.error <= case.tolerance)
+                })
+                .count();
+            (pairs, truths)
+        };
+        let ((pa, ta), (pc, tc)) = (recovered(&adam), recovered(&cma));
         let p = wilcoxon_less(&ea, &ec)
             .map(|p| format!("{p:.3}"))
             .unwrap_or_else(|| "–".into());
         md.push_str(&format!(
-            "\nAdam: error {ma:.3} ± {sa:.3}{u}, {within}/{} pairs within {}{u} ({truths_within}/5 true values with every start within it). CMA-ES: {mc:.3} ± {sc:.3}{u}. Adam lower: p = {p}.\n",
-            ea.len(),
-            case.tolerance,
+            "
+Adam: error {ma:.3} ± {sa:.3}{u}, {pa}/{n} pairs within {tol}{u}, {ta}/5 true values with every start within it. CMA-ES: {mc:.3} ± {sc:.3}{u}, {pc}/{n} pairs within {tol}{u}, {tc}/5 true values. Adam lower: p = {p}.\n",
+            n = ea.len(),
+            tol = case.tolerance,
             u = case.unit
         ));
         md.push_str("\nAt smaller budgets (the error of the best rollout so far, read off each run's curve):\n\n| compute (forward rollouts) | Adam error | CMA-ES error | Adam lower: p |\n|---|---|---|---|\n");
