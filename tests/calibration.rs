@@ -184,7 +184,7 @@ fn calibrate_writes_a_loadable_fitted_scene_and_resumes_from_its_journal() {
     std::fs::create_dir_all(&dir).unwrap();
     let scene = common::test_scene_path("calibration_tiny.ron");
     let scene = scene.to_str().unwrap();
-    let obs = dir.join("pile.csv");
+    let obs = dir.join("pile.png");
     let (code, err) = powderlab(&[
         "observe",
         scene,

@@ -7,6 +7,11 @@
 //!   starting with `#` carry the grid: `# pixel=0.0025 origin_x=0.00125 origin_z=0.00125`
 //!   (metres; the origin is pixel (0, 0)'s centre).
 //!
+//! - **a 16-bit PNG height map**, grey, one sample per pixel (row 0 at the smallest z), with
+//!   text chunks `pixel`, `origin_x`, `origin_z` (metres, as in the CSV), `height_scale`
+//!   (metres per unit) and optionally `height_offset` (metres, default 0): the height is
+//!   `offset + scale·value`, and a value of 0 marks an unseen pixel (a depth camera's hole).
+//!
 //! Each is tied to a global step: `FILE@STEP`, or the scene's horizon without one. Every failure
 //! is one line naming the file and what is wrong.
 
@@ -85,8 +90,9 @@ pub fn read(path: &Path) -> Result<Observation, String> {
     match ext.as_deref() {
         Some("ply") => read_ply(&bytes).map_err(|e| format!("{shown}: {e}")),
         Some("csv") => read_csv(&bytes).map_err(|e| format!("{shown}: {e}")),
+        Some("png") => read_png(&bytes).map_err(|e| format!("{shown}: {e}")),
         _ => Err(format!(
-            "{shown}: unknown observation type; expected a point cloud (.ply) or a height map (.csv)"
+            "{shown}: unknown observation type; expected a point cloud (.ply) or a height map (.csv, or a 16-bit .png)"
         )),
     }
 }
@@ -224,6 +230,112 @@ fn read_csv(bytes: &[u8]) -> Result<Observation, String> {
     })
 }
 
+/// The grid keys of a PNG height map (see the module docs).
+const PNG_KEYS: [&str; 5] = [
+    "pixel",
+    "origin_x",
+    "origin_z",
+    "height_scale",
+    "height_offset",
+];
+
+fn read_png(bytes: &[u8]) -> Result<Observation, String> {
+    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    let mut reader = decoder
+        .read_info()
+        .map_err(|e| format!("not a PNG this reader understands: {e}"))?;
+    let mut keys = [None; 5];
+    for t in &reader.info().uncompressed_latin1_text {
+        if let Some(k) = PNG_KEYS.iter().position(|k| *k == t.keyword) {
+            let v: f64 = t.text.trim().parse().map_err(|_| {
+                format!(
+                    "text chunk {}={} is not a number (metres)",
+                    t.keyword,
+                    crate::scene::parse::bounded(&t.text)
+                )
+            })?;
+            keys[k] = Some(v);
+        }
+    }
+    let need = |k: usize| {
+        keys[k].filter(|v| v.is_finite()).ok_or_else(|| {
+            format!(
+                "no finite '{}' text chunk; a PNG height map needs pixel, origin_x, origin_z and height_scale (metres)",
+                PNG_KEYS[k]
+            )
+        })
+    };
+    let (pixel, ox, oz, scale) = (need(0)?, need(1)?, need(2)?, need(3)?);
+    let offset = keys[4].unwrap_or(0.0);
+    if !(pixel > 0.0 && scale > 0.0 && offset.is_finite()) {
+        return Err(format!(
+            "pixel={pixel} and height_scale={scale} must be positive, height_offset={offset} finite"
+        ));
+    }
+    let size = reader
+        .output_buffer_size()
+        .ok_or("the image is too large for this machine")?;
+    let mut buf = vec![0u8; size];
+    let info = reader
+        .next_frame(&mut buf)
+        .map_err(|e| format!("cannot decode the image: {e}"))?;
+    if info.color_type != png::ColorType::Grayscale || info.bit_depth != png::BitDepth::Sixteen {
+        return Err(format!(
+            "{:?} at {:?} bits; a height map is 16-bit greyscale, one height per pixel",
+            info.color_type, info.bit_depth
+        ));
+    }
+    let heights: Vec<f64> = buf[..info.buffer_size()]
+        .chunks_exact(2)
+        .map(|c| match u16::from_be_bytes([c[0], c[1]]) {
+            0 => f64::NAN,
+            v => offset + scale * v as f64,
+        })
+        .collect();
+    if heights.iter().all(|h| h.is_nan()) {
+        return Err("every pixel is 0 (unseen); the map shows nothing to calibrate against".into());
+    }
+    Ok(Observation::Heights {
+        grid: HeightGrid {
+            origin: [ox, oz],
+            pixel,
+            nx: info.width as usize,
+            nz: info.height as usize,
+        },
+        heights,
+    })
+}
+
+/// A 16-bit greyscale PNG of a height map (see the module docs) at `scale` metres per unit
+/// from `offset`; unseen pixels, and heights below `offset + scale/2`, are written as 0.
+pub fn heights_png(grid: &HeightGrid, heights: &[f64], offset: f64, scale: f64) -> Vec<u8> {
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, grid.nx as u32, grid.nz as u32);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Sixteen);
+        let values = [grid.pixel, grid.origin[0], grid.origin[1], scale, offset];
+        for (k, v) in PNG_KEYS.iter().zip(values) {
+            enc.add_text_chunk(k.to_string(), format!("{v:e}"))
+                .expect("ASCII keywords under 80 bytes");
+        }
+        let data: Vec<u8> = heights
+            .iter()
+            .flat_map(|h| {
+                let v = if h.is_finite() {
+                    ((h - offset) / scale).round().clamp(0.0, 65535.0) as u16
+                } else {
+                    0
+                };
+                v.to_be_bytes()
+            })
+            .collect();
+        let mut w = enc.write_header().expect("writing to memory");
+        w.write_image_data(&data).expect("writing to memory");
+    }
+    out
+}
+
 /// The CSV text of a height map (see the module docs), heights to the micrometre.
 pub fn heights_csv(grid: &HeightGrid, heights: &[f64]) -> String {
     let mut s = format!(
@@ -298,11 +410,27 @@ mod tests {
         let pts = vec![DVec3::new(0.5, 0.25, -0.125), DVec3::new(1.0, 2.0, 3.0)];
         let q = tmp("c.ply", &cloud_ply(&pts));
         assert_eq!(read(&q).unwrap(), Observation::Cloud(pts));
+        // A PNG at 10 µm per unit: every height back within half a unit, the unseen one unseen.
+        let r = tmp("h.png", &heights_png(&grid, &h, 0.0, 1e-5));
+        let Observation::Heights {
+            grid: g3,
+            heights: h3,
+        } = read(&r).unwrap()
+        else {
+            panic!("a height map")
+        };
+        assert_eq!(g3, grid);
+        for (a, b) in h.iter().zip(&h3) {
+            assert!(
+                (a.is_nan() && b.is_nan()) || (a - b).abs() <= 0.5e-5 + 1e-15 || *a == 0.0,
+                "{a} {b}"
+            );
+        }
     }
 
     #[test]
     fn bad_observations_get_one_line_naming_the_file() {
-        let cases: [(&str, &[u8], &str); 6] = [
+        let cases: [(&str, &[u8], &str); 7] = [
             ("a.csv", b"0.1,0.2\n", "no 'pixel='"),
             (
                 "b.csv",
@@ -325,6 +453,7 @@ mod tests {
                 b"# pixel=-1 origin_x=0 origin_z=0\n0.1\n",
                 "pixel=-1",
             ),
+            ("g.png", b"\x89PNG\r\n\x1a\nnot really", "not a PNG"),
         ];
         for (name, bytes, want) in cases {
             let p = tmp(name, bytes);

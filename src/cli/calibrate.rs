@@ -16,7 +16,8 @@ use std::path::PathBuf;
 pub struct Args {
     /// The scene to calibrate; its values of the fitted parameters are the start.
     scene: PathBuf,
-    /// An observation: a height map (.csv) or a point cloud (.ply), optionally at a global step
+    /// An observation: a height map (.csv, or 16-bit .png) or a point cloud (.ply), optionally
+    /// at a global step
     /// (FILE@STEP; default the scene's last step). Repeat for a sequence.
     #[arg(long, required = true)]
     observed: Vec<String>,
@@ -394,7 +395,8 @@ fn record(
 #[derive(clap::Args)]
 pub struct ObserveArgs {
     scene: PathBuf,
-    /// The observation file: .csv (height map) or .ply (point cloud).
+    /// The observation file: .csv or .png (a height map; the PNG 16-bit at 10 µm per unit) or
+    /// .ply (a point cloud).
     #[arg(long)]
     out: PathBuf,
     /// Parameter values for the run, NAME=VALUE (names as in calibrate --fit).
@@ -426,11 +428,12 @@ pub fn observe(a: ObserveArgs) -> Result<()> {
     if let Err(e) = scene.validate() {
         bail!("--set: the scene with these values is refused: {e}");
     }
-    let heights = match a.out.extension().and_then(|e| e.to_str()) {
-        Some("csv") => true,
-        Some("ply") => false,
+    let ext = a.out.extension().and_then(|e| e.to_str()).unwrap_or("");
+    let heights = match ext {
+        "csv" | "png" => true,
+        "ply" => false,
         _ => bail!(
-            "--out {}: expected a .csv (height map) or .ply (point cloud) file name",
+            "--out {}: expected a .csv or .png (height map) or .ply (point cloud) file name",
             a.out.display()
         ),
     };
@@ -457,6 +460,12 @@ pub fn observe(a: ObserveArgs) -> Result<()> {
     };
     let o = calibrate::observe(&scene, step, heights, pixel, a.noise, a.seed, a.threads)?;
     let bytes = match &o {
+        Observation::Heights { grid, heights } if ext == "png" => {
+            // 10 µm per unit spans 0.65 m; the lowest height of the domain reads 1, not 0
+            // (unseen).
+            let scale = 1e-5;
+            observation::heights_png(grid, heights, scene.domain().0.y - scale, scale)
+        }
         Observation::Heights { grid, heights } => {
             observation::heights_csv(grid, heights).into_bytes()
         }
