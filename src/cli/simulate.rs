@@ -24,6 +24,10 @@ pub struct Args {
     /// Write the final particle positions and velocities as PLY.
     #[arg(long)]
     save_state: Option<PathBuf>,
+    /// Run a scene whose estimated work is over the limit (1e10 particle-substeps, about an
+    /// hour on the reference machine) anyway.
+    #[arg(long)]
+    force: bool,
 }
 
 /// Runs the command.
@@ -34,6 +38,7 @@ pub fn run(a: Args) -> Result<()> {
         out,
         threads,
         save_state,
+        force,
     } = a;
     // Refuse an unwritable output before the run, not after it.
     if let Some(p) = &out {
@@ -52,6 +57,21 @@ pub fn run(a: Args) -> Result<()> {
     super::describe_stability(&sim);
     let steps = steps.unwrap_or(sim.horizon);
     let n = sim.particle_count();
+    let work = powderlab::scene::WorkEstimate {
+        particles: n,
+        substeps: sim.params().substeps,
+        steps,
+    };
+    eprintln!("work: {}", work.describe());
+    if work.over_limit() && !force {
+        anyhow::bail!(
+            "{}: {}, over the limit of {:.0e}: {}; pass --force to run it anyway",
+            scene.display(),
+            work.describe(),
+            powderlab::scene::WORK_LIMIT,
+            work.driver(&sim.scene, &sim.stability)
+        );
+    }
     eprintln!(
         "{}: {} particles, {} steps × {} substeps, {} threads; systems: {}",
         scene.display(),

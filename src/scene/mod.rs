@@ -20,10 +20,12 @@ pub mod parse;
 pub mod prepare;
 pub mod types;
 pub mod validate;
+pub mod work;
 
 pub use parse::locate;
 pub use prepare::{Prepared, PreparedBody, PreparedCollider, StabilityReport, MAX_AUTO_SUBSTEPS};
 pub use types::*;
+pub use work::{WorkEstimate, WORK_LIMIT};
 
 use crate::math::geometry::CupRegion;
 use crate::math::pose::Pose;

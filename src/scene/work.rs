@@ -1,0 +1,120 @@
+//! The work a run will take, estimated before it starts, and the limit past which `simulate`
+//! asks for `--force`.
+
+use super::{Scene, StabilityReport};
+
+/// The forward pass's rate on the reference machine, in particle-substeps per second: 3.0 M on
+/// its 2 threads (docs/results/performance.md). The estimate scales by nothing else, so on
+/// another machine it is a unit of work more than a forecast.
+pub const REFERENCE_RATE: f64 = 3.0e6;
+
+/// The most particle-substeps a run starts without `--force`: about 55 minutes at
+/// [`REFERENCE_RATE`]. The shipped scenes' horizons need at most a few hundred million.
+pub const WORK_LIMIT: f64 = 1e10;
+
+/// A run's size.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WorkEstimate {
+    pub particles: usize,
+    pub substeps: usize,
+    pub steps: usize,
+}
+
+impl WorkEstimate {
+    pub fn particle_substeps(&self) -> f64 {
+        self.particles as f64 * self.substeps as f64 * self.steps as f64
+    }
+
+    /// Seconds at [`REFERENCE_RATE`].
+    pub fn seconds(&self) -> f64 {
+        self.particle_substeps() / REFERENCE_RATE
+    }
+
+    pub fn over_limit(&self) -> bool {
+        self.particle_substeps() > WORK_LIMIT
+    }
+
+    /// `N particles × S substeps × T steps = W particle-substeps, about D at 3 M/s`.
+    pub fn describe(&self) -> String {
+        let s = self.seconds();
+        let time = if s < 120.0 {
+            format!("{s:.0} s")
+        } else if s < 7200.0 {
+            format!("{:.0} min", s / 60.0)
+        } else if s < 2.0 * 86400.0 {
+            format!("{:.1} h", s / 3600.0)
+        } else {
+            format!("{:.0} days", s / 86400.0)
+        };
+        format!(
+            "{} particles × {} substeps × {} steps = {:.2e} particle-substeps, about {time} at the reference machine's {:.0} M particle-substeps/s",
+            self.particles,
+            self.substeps,
+            self.steps,
+            self.particle_substeps(),
+            REFERENCE_RATE / 1e6
+        )
+    }
+
+    /// The scene field that drives the work: the substeps (what raised them, for `Auto`), the
+    /// steps, or the particle count.
+    pub fn driver(&self, scene: &Scene, stability: &StabilityReport) -> String {
+        if self.substeps >= 1000 {
+            if !stability.raised() {
+                return format!("`simulation.substeps` = {} asks for them", self.substeps);
+            }
+            if stability.wave_speed >= stability.max_speed {
+                let stiffest = scene
+                    .materials
+                    .iter()
+                    .filter(|(name, _)| scene.bodies.iter().any(|b| &b.material == *name))
+                    .map(|(name, m)| {
+                        let (mu, lambda) = m.lame();
+                        (name, ((lambda + 2.0 * mu) / m.density()).sqrt())
+                    })
+                    .max_by(|a, b| a.1.total_cmp(&b.1));
+                if let Some((name, c)) = stiffest {
+                    return format!(
+                        "the stability guard raised the substeps from {} for material '{name}''s elastic wave speed of {c:.3e} m/s: lower `materials.{name}.youngs_modulus` or move `poisson_ratio` away from 0.5",
+                        stability.substeps_requested
+                    );
+                }
+            }
+            return format!(
+                "the stability guard raised the substeps from {} for a speed of {:.3e} m/s: slow the fastest tool or body",
+                stability.substeps_requested, stability.max_speed
+            );
+        }
+        if self.steps as f64 >= 1e5 {
+            return format!("`simulation.steps` (or --steps) = {}", self.steps);
+        }
+        "the particle count: lower `particles_per_cell` or shrink the fills".into()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_estimate_multiplies_and_reads_in_human_units() {
+        let w = WorkEstimate {
+            particles: 1000,
+            substeps: 30,
+            steps: 100,
+        };
+        assert_eq!(w.particle_substeps(), 3.0e6);
+        assert!(w.describe().contains("about 1 s"), "{}", w.describe());
+        assert!(!w.over_limit());
+        let big = WorkEstimate {
+            particles: 54_872,
+            substeps: 984_732,
+            steps: 20,
+        };
+        assert!(
+            big.over_limit() && big.describe().contains("days"),
+            "{}",
+            big.describe()
+        );
+    }
+}

@@ -1,0 +1,67 @@
+//! `simulate` prints its work estimate, and refuses a run over the work limit before it starts,
+//! naming what drives the work, unless `--force` is given.
+
+mod common;
+
+use std::process::Command;
+
+fn simulate(scene_text: &str, name: &str, extra: &[&str]) -> (i32, String) {
+    let dir = std::env::temp_dir().join(format!("powderlab-work-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join(name);
+    std::fs::write(&path, scene_text).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .arg("simulate")
+        .arg(&path)
+        .args(extra)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+fn sand_box() -> String {
+    std::fs::read_to_string(common::scene_path("sand_box.ron"))
+        .unwrap()
+        .replace("stability: Strict", "stability: Auto")
+}
+
+#[test]
+fn a_nearly_incompressible_powder_is_refused_naming_its_material() {
+    // ν → 0.5 sends the wave speed, and the guard's substeps, to 19,033 per step.
+    let text = sand_box().replace("poisson_ratio: 0.3", "poisson_ratio: 0.4999999");
+    let (code, err) = simulate(&text, "incompressible.ron", &[]);
+    assert_eq!(code, 2, "{err}");
+    let last = err.trim_end().lines().last().unwrap();
+    assert!(
+        last.contains("incompressible.ron")
+            && last.contains("19033 substeps")
+            && last.contains("materials.sand.youngs_modulus")
+            && last.contains("--force"),
+        "{last}"
+    );
+}
+
+#[test]
+fn a_horizon_of_millions_of_steps_is_refused_naming_the_steps() {
+    let text = sand_box().replace("steps: Some(20)", "steps: Some(20000000)");
+    let (code, err) = simulate(&text, "long.ron", &[]);
+    assert_eq!(code, 2, "{err}");
+    let last = err.trim_end().lines().last().unwrap();
+    assert!(
+        last.contains("`simulation.steps`") && last.contains("--force"),
+        "{last}"
+    );
+}
+
+#[test]
+fn an_ordinary_run_prints_its_estimate_and_runs() {
+    let (code, err) = simulate(&sand_box(), "ordinary.ron", &["--steps", "1"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("work: 54872 particles × 20 substeps × 1 steps"),
+        "{err}"
+    );
+}
