@@ -77,7 +77,7 @@ pub enum Loss {
     /// `(1/n) Σ_c (h_c − o_c)²` between the soft surface heights and an observed height map.
     HeightField(HeightObservation),
     /// The Chamfer distance between all bodies' particles and an observed point cloud.
-    Chamfer(chamfer::Observed),
+    Chamfer(chamfer::ObservedCloud),
 }
 
 /// An observed height map and the soft height's settings ([`crate::math::heightfield`]).
@@ -284,12 +284,6 @@ impl Term {
             Term::Carry(c) => c.step,
             Term::Positions { step, .. } => *step,
         }
-    }
-}
-
-impl From<Carry> for Term {
-    fn from(c: Carry) -> Term {
-        Term::Carry(c)
     }
 }
 

@@ -172,7 +172,7 @@ pub fn observation_loss(
                 ));
             }
             Ok((
-                Loss::Chamfer(chamfer::Observed::new(points.clone())),
+                Loss::Chamfer(chamfer::ObservedCloud::new(points.clone())),
                 points.len(),
             ))
         }

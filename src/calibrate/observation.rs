@@ -386,6 +386,14 @@ mod tests {
         p
     }
 
+    /// The grid and heights of a height-map file.
+    fn read_heights(p: &Path) -> (HeightGrid, Vec<f64>) {
+        match read(p).unwrap() {
+            Observation::Heights { grid, heights } => (grid, heights),
+            Observation::Cloud(_) => panic!("{}: a height map", p.display()),
+        }
+    }
+
     #[test]
     fn height_maps_and_clouds_round_trip() {
         let grid = HeightGrid {
@@ -396,13 +404,7 @@ mod tests {
         };
         let h = vec![0.01, f64::NAN, 0.012345, 0.0, 0.02, 0.03];
         let p = tmp("h.csv", heights_csv(&grid, &h).as_bytes());
-        let Observation::Heights {
-            grid: g2,
-            heights: h2,
-        } = read(&p).unwrap()
-        else {
-            panic!("a height map")
-        };
+        let (g2, h2) = read_heights(&p);
         assert_eq!(g2, grid);
         for (a, b) in h.iter().zip(&h2) {
             assert!((a.is_nan() && b.is_nan()) || (a - b).abs() < 1e-9);
@@ -410,15 +412,10 @@ mod tests {
         let pts = vec![DVec3::new(0.5, 0.25, -0.125), DVec3::new(1.0, 2.0, 3.0)];
         let q = tmp("c.ply", &cloud_ply(&pts));
         assert_eq!(read(&q).unwrap(), Observation::Cloud(pts));
-        // A PNG at 10 µm per unit: every height back within half a unit, the unseen one unseen.
+        // A PNG at 10 µm per unit from 0: every height back within half a unit; the unseen one, and
+        // the height 0 (below half a unit, written as a hole), read unseen.
         let r = tmp("h.png", &heights_png(&grid, &h, 0.0, 1e-5));
-        let Observation::Heights {
-            grid: g3,
-            heights: h3,
-        } = read(&r).unwrap()
-        else {
-            panic!("a height map")
-        };
+        let (g3, h3) = read_heights(&r);
         assert_eq!(g3, grid);
         for (a, b) in h.iter().zip(&h3) {
             assert!(

@@ -18,16 +18,16 @@ use std::sync::Arc;
 
 /// An observed point cloud with its k-d tree, built once.
 #[derive(Clone, Debug)]
-pub struct Observed {
+pub struct ObservedCloud {
     pub points: Vec<DVec3>,
     tree: Arc<ImmutableKdTree<f64, 3>>,
 }
 
-impl Observed {
+impl ObservedCloud {
     /// `points` must be non-empty and finite (the observation's reader checks both).
-    pub fn new(points: Vec<DVec3>) -> Observed {
+    pub fn new(points: Vec<DVec3>) -> ObservedCloud {
         let tree = Arc::new(tree(&points));
-        Observed { points, tree }
+        ObservedCloud { points, tree }
     }
 }
 
@@ -37,7 +37,7 @@ fn tree(points: &[DVec3]) -> ImmutableKdTree<f64, 3> {
 }
 
 /// The Chamfer distance (m²) and its gradient with respect to each simulated point.
-pub fn chamfer(sim: &[DVec3], obs: &Observed) -> (f64, Vec<DVec3>) {
+pub fn chamfer(sim: &[DVec3], obs: &ObservedCloud) -> (f64, Vec<DVec3>) {
     if sim.is_empty() || obs.points.is_empty() {
         return (0.0, vec![DVec3::ZERO; sim.len()]);
     }
@@ -87,7 +87,7 @@ mod tests {
     #[test]
     fn chamfer_adjoint_matches_central_differences() {
         let sim = scatter(40, 0.3);
-        let obs = Observed::new(scatter(55, 7.1));
+        let obs = ObservedCloud::new(scatter(55, 7.1));
         let (_, g) = chamfer(&sim, &obs);
         let eps = 1e-7;
         let mut worst: f64 = 0.0;
@@ -108,7 +108,7 @@ mod tests {
     #[test]
     fn chamfer_is_zero_on_identical_clouds_and_grows_with_a_shift() {
         let a = scatter(30, 0.0);
-        let obs = Observed::new(a.clone());
+        let obs = ObservedCloud::new(a.clone());
         assert_eq!(chamfer(&a, &obs).0, 0.0);
         // A shift far smaller than the spacing keeps every assignment: L = 2·s².
         let s = 1e-5;
