@@ -54,6 +54,7 @@ pub mod plugin;
 pub mod ply;
 #[cfg(feature = "rerun")]
 pub mod record;
+pub mod rollout;
 pub mod scene;
 pub mod sim;
 pub mod skills;

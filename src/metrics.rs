@@ -26,6 +26,18 @@ pub struct FrameMetrics {
     pub max_speed: f64,
 }
 
+/// The task's score in the current state: `(transported, target − transported)`, in the task's
+/// unit (particles or grams). The indicator of the seed paper; its absolute value is the dose
+/// error.
+pub fn task_indicator(world: &mut World, task: &crate::scene::TaskSpec) -> (f64, f64) {
+    let m = frame_metrics(world, Some(&task.target));
+    let (target, transported) = match task.target_value {
+        crate::scene::TargetValue::Particles(n) => (n, m.transported as f64),
+        crate::scene::TargetValue::Grams(g) => (g, m.transported_mass * 1e3),
+    };
+    (transported, target - transported)
+}
+
 /// Computes the metrics of the current state; `target` names the target cup, if any.
 pub fn frame_metrics(world: &mut World, target: Option<&str>) -> FrameMetrics {
     let g = world.resource::<SimParams>().gravity;

@@ -118,6 +118,11 @@ impl Recorder {
         self.frame_with(world, &m)
     }
 
+    /// The file the recording completes to.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// Whether the current step is a recorded one.
     pub fn records(&self, world: &World) -> bool {
         world.resource::<Clock>().step.is_multiple_of(self.every)

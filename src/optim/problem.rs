@@ -4,7 +4,6 @@
 use crate::adjoint::loss::scene_loss;
 use crate::adjoint::tape::{gradient_with, Carry, Loss, Tape, Term};
 use crate::error::FieldError;
-use crate::metrics::frame_metrics;
 use crate::scene::{ControlSpec, Scene, TargetValue};
 use crate::sim::{Build, SimOptions, Simulation};
 use anyhow::Context;
@@ -50,30 +49,7 @@ pub struct Outcome {
 impl Problem {
     /// Checks that the scene can be optimised: one tool with a `Skill` control and a `task`.
     pub fn new(scene: Scene, tape_budget: usize) -> Result<Problem, crate::error::SceneError> {
-        let tools: Vec<usize> = scene
-            .colliders
-            .iter()
-            .enumerate()
-            .filter(|(_, c)| matches!(c.control, Some(ControlSpec::Skill(_))))
-            .map(|(i, _)| i)
-            .collect();
-        let tool = match tools.as_slice() {
-            [t] => *t,
-            [] => {
-                return Err(scene.field_error(FieldError::new(
-                    "colliders",
-                    "no tool with a Skill control",
-                    "exactly one tool with `control: Skill((...))`: optimize searches its skill parameters",
-                )))
-            }
-            _ => {
-                return Err(scene.field_error(FieldError::new(
-                    format!("colliders[{}].control", tools[1]),
-                    "a second Skill control",
-                    "exactly one tool with `control: Skill((...))`",
-                )))
-            }
-        };
+        let tool = crate::rollout::skill_tool(&scene)?;
         let Some(task) = scene.task.clone() else {
             return Err(scene.field_error(FieldError::new(
                 "task",
@@ -260,12 +236,7 @@ impl Problem {
     /// Transported amount and indicator of the simulation's current state.
     pub fn indicator(&self, sim: &mut Simulation) -> (f64, f64) {
         let task = self.scene.task.as_ref().expect("checked in Problem::new");
-        let m = frame_metrics(&mut sim.world, Some(&task.target));
-        let (target, transported) = match self.target {
-            TargetValue::Particles(n) => (n, m.transported as f64),
-            TargetValue::Grams(g) => (g, m.transported_mass * 1e3),
-        };
-        (transported, target - transported)
+        crate::metrics::task_indicator(&mut sim.world, task)
     }
 
     /// Runs `sim` (a fresh simulation of this problem, at step 0) through its whole horizon

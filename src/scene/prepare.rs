@@ -104,6 +104,14 @@ fn collider_controls(c: &ColliderSpec, dt: f64) -> Vec<[f64; 6]> {
     }
 }
 
+/// The largest speed of any point of a tool of bounding radius `r` under the step control `u`
+/// (translation, rotation vector over a step of `dt`): what the stability guard bounds.
+pub fn control_speed(u: [f64; 6], dt: f64, r: f64) -> f64 {
+    let lin = DVec3::new(u[0], u[1], u[2]).length() / dt;
+    let ang = DVec3::new(u[3], u[4], u[5]).length() / dt;
+    lin + if r.is_finite() { ang * r } else { 0.0 }
+}
+
 /// A collider's entry: the reach check on its path, and its largest point speed.
 fn prepare_collider(
     scene: &Scene,
@@ -115,12 +123,10 @@ fn prepare_collider(
     let pose = Scene::collider_pose(c);
     let r = c.shape.bounding_radius();
     check_collider_reaches_grid(scene, i, pose.translation, r, &controls)?;
-    let mut max_speed = 0.0f64;
-    for u in &controls {
-        let lin = DVec3::new(u[0], u[1], u[2]).length() / dt;
-        let ang = DVec3::new(u[3], u[4], u[5]).length() / dt;
-        max_speed = max_speed.max(lin + if r.is_finite() { ang * r } else { 0.0 });
-    }
+    let max_speed = controls
+        .iter()
+        .map(|u| control_speed(*u, dt, r))
+        .fold(0.0, f64::max);
     Ok(PreparedCollider {
         kind: match c.kind {
             ColliderKindSpec::Tool => ColliderKind::Tool,
