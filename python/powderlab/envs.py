@@ -1,0 +1,242 @@
+"""Gymnasium environments over powderlab scenes (needs ``gymnasium``).
+
+Two ids are registered when this module is imported:
+
+``powderlab/SkillTransport-v0``
+    The seed paper's framing: one step per episode. The action is the skill's Θ in [-1, 1]^5
+    (scoop depth, scoop angle, lift height, transport distance, pour angle); the episode is one
+    rollout; the reward is minus the dose error in the task's unit (grams for the shipped
+    scenes), or minus the scene's loss with ``reward="loss"``.
+
+``powderlab/ToolControl-v0``
+    Per-step control: the action is a 6-D displacement of the tool per global step
+    (translation and rotation vector), scaled from [-1, 1] so that the tool never moves faster
+    than the scene's own skill did (the speed the substeps were chosen for). The observation is
+    a height field of the powder (``obs="heightfield"``, the default) or every particle's
+    position (``obs="particles"``), with the tool's pose. The reward is sparse: minus the dose
+    error at the last step, 0 before it.
+
+Both take ``randomize={"friction_deg": (25, 40), ...}``: each reset draws those parameters
+uniformly from the episode's seed (any name ``Scene.with_params`` takes), and the observation
+carries their values, so that a policy can be trained over randomised powders. The same seed
+gives the same episode, bit for bit.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Dict, Optional, Tuple, Union
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+
+from . import Scene, Simulation, rollout
+
+SceneLike = Union[str, "os.PathLike[str]", Scene]
+
+# The scenes folder of a source checkout (python/powderlab/ -> ../../scenes).
+_SCENES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scenes")
+
+
+def resolve_scene(scene: SceneLike) -> Scene:
+    """A Scene from a Scene, a path, or the name of a shipped scene (``"powder_transport"``)."""
+    if isinstance(scene, Scene):
+        return scene
+    path = os.fspath(scene)
+    if not os.path.exists(path) and os.sep not in path and not path.endswith(".ron"):
+        shipped = os.path.join(_SCENES, path + ".ron")
+        if os.path.exists(shipped):
+            path = shipped
+    return Scene.load(path)
+
+
+class _Randomized:
+    """The domain randomisation shared by both environments."""
+
+    def _setup_randomize(self, randomize: Optional[Dict[str, Tuple[float, float]]]) -> None:
+        self.randomize = dict(sorted((randomize or {}).items()))
+        for name, (lo, hi) in self.randomize.items():
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
+                raise ValueError(f"randomize['{name}'] = ({lo}, {hi}): expected finite lo <= hi")
+        # Fail now, not at the first reset, on a name the scene does not have.
+        if self.randomize:
+            self.base_scene.with_params({k: lo for k, (lo, _) in self.randomize.items()})
+        self._params = np.array([lo for lo, _ in self.randomize.values()], dtype=np.float64)
+
+    def _draw_scene(self) -> Scene:
+        if not self.randomize:
+            return self.base_scene
+        lo = np.array([r[0] for r in self.randomize.values()])
+        hi = np.array([r[1] for r in self.randomize.values()])
+        self._params = lo + (hi - lo) * self.np_random.random(len(lo))
+        return self.base_scene.with_params(dict(zip(self.randomize, self._params.tolist())))
+
+    def _params_info(self) -> Dict[str, float]:
+        return dict(zip(self.randomize, self._params.tolist()))
+
+
+class SkillEnv(_Randomized, gym.Env):
+    """One rollout per episode; the action is Θ (see the module docs)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        scene: SceneLike = "powder_transport",
+        reward: str = "dose",
+        randomize: Optional[Dict[str, Tuple[float, float]]] = None,
+        threads: Optional[int] = None,
+    ) -> None:
+        self.base_scene = resolve_scene(scene)
+        if self.base_scene.theta is None or self.base_scene.task is None:
+            raise ValueError(
+                f"{self.base_scene.path}: SkillEnv needs a scene with one Skill tool and a task"
+            )
+        if reward not in ("dose", "loss"):
+            raise ValueError(f"reward = {reward!r}: expected 'dose' or 'loss'")
+        self.reward_kind = reward
+        self.threads = threads
+        self._setup_randomize(randomize)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(5,), dtype=np.float64)
+        # The task's target amount, then each randomised parameter.
+        amount = self.base_scene.task[1]
+        self.observation_space = spaces.Box(
+            np.array([0.0] + [lo for lo, _ in self.randomize.values()], dtype=np.float64),
+            np.array([amount] + [hi for _, hi in self.randomize.values()], dtype=np.float64),
+            dtype=np.float64,
+        )
+        self._scene = self.base_scene
+
+    def _obs(self) -> np.ndarray:
+        return np.concatenate([[self.base_scene.task[1]], self._params]).astype(np.float64)
+
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        super().reset(seed=seed)
+        self._scene = self._draw_scene()
+        return self._obs(), {"params": self._params_info()}
+
+    def step(self, action):
+        theta = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0)
+        r = rollout(self._scene, theta=theta.tolist(), threads=self.threads)
+        dose_error = abs(r["indicator"])
+        reward = -dose_error if self.reward_kind == "dose" else -r["loss"]
+        info: Dict[str, Any] = {
+            "loss": r["loss"],
+            "indicator": r["indicator"],
+            "transported": r["transported"],
+            "dose_error": dose_error,
+            "params": self._params_info(),
+        }
+        return self._obs(), float(reward), True, False, info
+
+
+class ToolControlEnv(_Randomized, gym.Env):
+    """Per-step 6-D control of the scene's tool (see the module docs)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(
+        self,
+        scene: SceneLike = "powder_transport",
+        obs: str = "heightfield",
+        grid: Tuple[int, int] = (16, 16),
+        randomize: Optional[Dict[str, Tuple[float, float]]] = None,
+        max_steps: Optional[int] = None,
+        threads: Optional[int] = None,
+    ) -> None:
+        self.base_scene = resolve_scene(scene)
+        if self.base_scene.task is None or not self.base_scene.tools:
+            raise ValueError(f"{self.base_scene.path}: ToolControlEnv needs a tool and a task")
+        if obs not in ("heightfield", "particles"):
+            raise ValueError(f"obs = {obs!r}: expected 'heightfield' or 'particles'")
+        self.obs_kind = obs
+        self.grid = (int(grid[0]), int(grid[1]))
+        self.threads = threads
+        self.tool = self.base_scene.tools[0]
+        self._setup_randomize(randomize)
+        probe = Simulation(self.base_scene, threads=threads)
+        self.max_steps = int(max_steps or probe.horizon)
+        n = probe.particle_count
+        speed, radius = probe.tool_limit(self.tool)
+        if speed <= 0.0:
+            raise ValueError(
+                f"{self.base_scene.path}: tool '{self.tool}' does not move in the scene, so the "
+                "substeps allow no motion; give it a control whose speed bounds the actions"
+            )
+        dt = self.base_scene.dt
+        # Half the speed budget each to translation and rotation: |t|/dt + |r|·R/dt <= speed.
+        self._scale = np.array(
+            [0.5 * speed * dt / np.sqrt(3.0)] * 3 + [0.5 * speed * dt / (radius * np.sqrt(3.0))] * 3
+        )
+        lo, hi = self.base_scene.domain
+        self._lo, self._hi = np.array(lo), np.array(hi)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float64)
+        if obs == "heightfield":
+            powder = spaces.Box(0.0, float(hi[1] - lo[1]), shape=self.grid, dtype=np.float64)
+        else:
+            # The domain walls keep every particle inside the grid's box.
+            powder = spaces.Box(
+                np.tile(self._lo, (n, 1)), np.tile(self._hi, (n, 1)), dtype=np.float64
+            )
+        ranges = list(self.randomize.values())
+        self.observation_space = spaces.Dict(
+            {
+                "powder": powder,
+                # Position (kept inside the grid's box by `step`), then a unit quaternion.
+                "tool": spaces.Box(
+                    np.concatenate([self._lo, -np.ones(4)]),
+                    np.concatenate([self._hi, np.ones(4)]),
+                    dtype=np.float64,
+                ),
+                "params": spaces.Box(
+                    np.array([r[0] for r in ranges], dtype=np.float64),
+                    np.array([r[1] for r in ranges], dtype=np.float64),
+                    dtype=np.float64,
+                ),
+            }
+        )
+        self.sim: Optional[Simulation] = None
+
+    def heightfield(self, x: np.ndarray) -> np.ndarray:
+        """The powder's top surface over the domain's x-z footprint: the highest particle
+        above the floor in each cell, 0 where the cell is empty."""
+        gx, gz = self.grid
+        ix = np.clip(((x[:, 0] - self._lo[0]) / (self._hi[0] - self._lo[0]) * gx).astype(int), 0, gx - 1)
+        iz = np.clip(((x[:, 2] - self._lo[2]) / (self._hi[2] - self._lo[2]) * gz).astype(int), 0, gz - 1)
+        h = np.zeros(self.grid)
+        np.maximum.at(h, (ix, iz), np.clip(x[:, 1] - self._lo[1], 0.0, None))
+        return h
+
+    def _obs(self) -> Dict[str, np.ndarray]:
+        x = self.sim.positions()
+        t, q = self.sim.tool_pose(self.tool)
+        powder = self.heightfield(x) if self.obs_kind == "heightfield" else x
+        return {"powder": powder, "tool": np.concatenate([t, q]), "params": self._params.copy()}
+
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        super().reset(seed=seed)
+        self.sim = Simulation(self._draw_scene(), threads=self.threads)
+        return self._obs(), {"params": self._params_info()}
+
+    def step(self, action):
+        if self.sim is None:
+            raise RuntimeError("step() before reset()")
+        u = np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) * self._scale
+        # Keep the tool's origin inside the grid's box.
+        t, _ = self.sim.tool_pose(self.tool)
+        u[:3] = np.clip(t + u[:3], self._lo, self._hi) - t
+        self.sim.set_controls(self.tool, u.tolist())
+        self.sim.step()
+        done = self.sim.step_index >= self.max_steps
+        info: Dict[str, Any] = {"params": self._params_info()}
+        reward = 0.0
+        if done:
+            r = self.sim.score()
+            info.update(r)
+            reward = -r["dose_error"]
+        return self._obs(), float(reward), done, False, info
+
+
+gym.register(id="powderlab/SkillTransport-v0", entry_point="powderlab.envs:SkillEnv")
+gym.register(id="powderlab/ToolControl-v0", entry_point="powderlab.envs:ToolControlEnv")
