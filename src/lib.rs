@@ -54,6 +54,8 @@ pub mod plugin;
 pub mod ply;
 #[cfg(feature = "rerun")]
 pub mod record;
+#[cfg(feature = "lab")]
+pub mod render;
 pub mod rollout;
 pub mod scene;
 pub mod sim;

@@ -33,6 +33,10 @@ enum Command {
     /// cloud (.ply), with optional noise (synthetic observations for `calibrate`).
     #[cfg(feature = "lab")]
     Observe(cli::calibrate::ObserveArgs),
+    /// Render PNG frames of a run from one or more cameras (powder as shaded splats, tools and
+    /// cups ray-marched from their SDFs).
+    #[cfg(feature = "lab")]
+    Render(cli::render::Args),
     /// Optimise the skill parameters of the scene's tool (gradient descent, and the baselines
     /// on the same rollout budget); writes metrics.csv, summary.json, indicator.svg, best.rrd.
     #[cfg(feature = "lab")]
@@ -56,6 +60,8 @@ fn main() {
         Command::Calibrate(a) => cli::calibrate::run(a),
         #[cfg(feature = "lab")]
         Command::Observe(a) => cli::calibrate::observe(a),
+        #[cfg(feature = "lab")]
+        Command::Render(a) => cli::render::run(a),
         #[cfg(feature = "lab")]
         Command::Optimize(a) => cli::optimize::run(a),
         #[cfg(feature = "lab")]

@@ -9,6 +9,8 @@ pub mod calibrate;
 pub mod gradcheck;
 #[cfg(feature = "lab")]
 pub mod optimize;
+#[cfg(feature = "lab")]
+pub mod render;
 pub mod simulate;
 #[cfg(feature = "lab")]
 pub mod study;
