@@ -41,6 +41,8 @@ pub mod adjoint;
 #[cfg(feature = "lab")]
 pub mod calibrate;
 pub mod components;
+#[cfg(feature = "lab")]
+pub mod demo;
 pub mod error;
 #[cfg(feature = "lab")]
 pub mod gradcheck;

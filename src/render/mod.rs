@@ -13,6 +13,7 @@
 //! bytes depend only on the state and the camera, not on the thread count.
 
 pub mod camera;
+pub mod silhouette;
 
 pub use camera::Camera;
 

@@ -61,6 +61,17 @@ pub fn spoon_rim_and_handle(
     )
 }
 
+/// What [`Spoon::sdf_dshape`] gives.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SdfShapeGrad {
+    pub phi: f64,
+    /// `∂φ/∂p` in the spoon's frame.
+    pub grad: DVec3,
+    /// `∂φ/∂(bowl_radius, bowl_depth, handle_length)`.
+    pub dshape: [f64; 3],
+    pub shell_interior: bool,
+}
+
 impl Spoon {
     /// The bowl's and the handle's SDFs; the spoon is the nearer.
     #[inline]
@@ -107,6 +118,58 @@ impl Spoon {
         let m = a + half;
         let handle = half.length() + self.handle_radius + s;
         (p - m).length_squared() > handle * handle
+    }
+
+    /// The spoon's SDF at `p` with its spatial gradient and `∂φ/∂(bowl_radius, bowl_depth,
+    /// handle_length)`, of the branch [`Spoon::sdf`] takes. `shell_interior` says `p` is inside
+    /// the bowl's shell on its sphere part, where `φ = |‖p‖ − r| − t/2` has a kink at the
+    /// mid-surface: a minimum of φ there is `−t/2` whatever the shape and pose.
+    pub fn sdf_dshape(&self, p: DVec3) -> SdfShapeGrad {
+        let (bowl, handle, h, a, b) = self.parts(p);
+        let r = self.bowl_radius;
+        let w = a.x;
+        // The rim point (w, h) moves with r and the depth D: h = D − r, w² = r² − h².
+        let (dh, dw) = if w > 0.0 {
+            ([-1.0, 1.0], [(r + h) / w, -h / w])
+        } else {
+            ([-1.0, 1.0], [0.0, 0.0])
+        };
+        if bowl.0 <= handle.0 {
+            let rho = (p.x * p.x + p.z * p.z).sqrt();
+            let mut d = [0.0; 3];
+            let mut shell_interior = false;
+            if h * rho < w * p.y {
+                // Distance to the rim circle.
+                let (ra, rb) = (rho - w, p.y - h);
+                let l = (ra * ra + rb * rb).sqrt().max(1e-300);
+                for k in 0..2 {
+                    d[k] = (-ra * dw[k] - rb * dh[k]) / l;
+                }
+            } else {
+                let l = p.length();
+                d[0] = -sign(l - r);
+                shell_interior = bowl.0 < 0.0;
+            }
+            SdfShapeGrad {
+                phi: bowl.0,
+                grad: bowl.1,
+                dshape: d,
+                shell_interior,
+            }
+        } else {
+            // Distance to the axis segment a → b: only the nearest point c = a + s·(b − a)
+            // moves (the envelope theorem), with a and b − a = (handle_length, rise, 0).
+            let ab = b - a;
+            let s = ((p - a).dot(ab) / ab.length_squared()).clamp(0.0, 1.0);
+            let n = handle.1;
+            let da = [DVec3::new(dw[0], dh[0], 0.0), DVec3::new(dw[1], dh[1], 0.0)];
+            SdfShapeGrad {
+                phi: handle.0,
+                grad: n,
+                dshape: [-n.dot(da[0]), -n.dot(da[1]), -n.x * s],
+                shell_interior: false,
+            }
+        }
     }
 
     /// The Hessian of the branch [`Spoon::sdf`] takes at `p`.

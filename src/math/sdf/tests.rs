@@ -267,3 +267,49 @@ fn surely_clear_claims_only_what_the_sdf_says() {
         }
     }
 }
+
+#[test]
+fn spoon_shape_derivatives_match_central_differences() {
+    let base = Spoon {
+        bowl_radius: 0.02,
+        bowl_depth: 0.012,
+        thickness: 0.0015,
+        handle_length: 0.1,
+        handle_radius: 0.003,
+        handle_rise: 0.02,
+    };
+    let with = |k: usize, d: f64| {
+        let mut s = base;
+        match k {
+            0 => s.bowl_radius += d,
+            1 => s.bowl_depth += d,
+            _ => s.handle_length += d,
+        }
+        s
+    };
+    let mut seed = 11;
+    let mut checked = [0; 3];
+    for _ in 0..4000 {
+        let p = 0.07 * DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed));
+        let g = base.sdf_dshape(p);
+        assert_eq!((g.phi, g.grad), base.sdf(p));
+        for (k, count) in checked.iter_mut().enumerate() {
+            let (lo, hi) = (with(k, -H).sdf(p), with(k, H).sdf(p));
+            // Skip points where the step changes branch (a kink between bowl and handle, or
+            // between the rim and the sphere): the one-sided slopes differ there.
+            let fwd = (hi.0 - g.phi) / H;
+            let bwd = (g.phi - lo.0) / H;
+            if (fwd - bwd).abs() > 1e-4 {
+                continue;
+            }
+            let fd = (hi.0 - lo.0) / (2.0 * H);
+            assert!(
+                (fd - g.dshape[k]).abs() < GRAD_TOL,
+                "parameter {k} at {p:?}: {} against {fd}",
+                g.dshape[k]
+            );
+            *count += 1;
+        }
+    }
+    assert!(checked.iter().all(|&c| c > 3000), "{checked:?}");
+}
