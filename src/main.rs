@@ -33,6 +33,10 @@ enum Command {
     /// cloud (.ply), with optional noise (synthetic observations for `calibrate`).
     #[cfg(feature = "lab")]
     Observe(cli::calibrate::ObserveArgs),
+    /// Learn the skill from a demonstration: `make` films a synthetic one, `fit` tracks the
+    /// spoon and fits Θ to its path.
+    #[cfg(feature = "lab")]
+    Demo(cli::demo::Args),
     /// Render PNG frames of a run from one or more cameras (powder as shaded splats, tools and
     /// cups ray-marched from their SDFs).
     #[cfg(feature = "lab")]
@@ -60,6 +64,8 @@ fn main() {
         Command::Calibrate(a) => cli::calibrate::run(a),
         #[cfg(feature = "lab")]
         Command::Observe(a) => cli::calibrate::observe(a),
+        #[cfg(feature = "lab")]
+        Command::Demo(a) => cli::demo::run(a),
         #[cfg(feature = "lab")]
         Command::Render(a) => cli::render::run(a),
         #[cfg(feature = "lab")]

@@ -42,6 +42,7 @@ fn frames_show_the_scene_and_do_not_depend_on_the_thread_count() {
         particles: &particles,
         radius: render::particle_radius(&scene),
         floor: None,
+        tool_colour: render::STEEL,
     };
     let rgb = render::render(&cam, &view);
     assert_eq!(rgb.len(), 160 * 120 * 3);

@@ -6,6 +6,8 @@ pub mod bench;
 #[cfg(feature = "lab")]
 pub mod calibrate;
 #[cfg(feature = "lab")]
+pub mod demo;
+#[cfg(feature = "lab")]
 pub mod gradcheck;
 #[cfg(feature = "lab")]
 pub mod optimize;

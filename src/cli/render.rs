@@ -34,7 +34,7 @@ pub struct Args {
     threads: Option<usize>,
 }
 
-fn size_arg(s: &str) -> Result<(u32, u32), String> {
+pub fn size_arg(s: &str) -> Result<(u32, u32), String> {
     let parsed = s
         .split_once('x')
         .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)));

@@ -15,7 +15,8 @@ use crate::render::silhouette::{perturbed, silhouette, Silhouette};
 use crate::render::Camera;
 use glam::DVec3;
 
-/// One view of a frame: a camera and the spoon's mask in it (row-major, 0 to 1).
+/// One view of a frame: a camera and the spoon's mask in it (row-major, 0 to 1, NaN where
+/// unknown: a pixel showing something that may hide the spoon, such as powder).
 pub struct View<'a> {
     pub camera: &'a Camera,
     pub mask: &'a [f64],
@@ -67,6 +68,10 @@ fn gauss_newton(
     for (v, &t) in views.iter().zip(tau) {
         let s: Silhouette = silhouette(v.camera, spoon, pose, t);
         for ((o, ray), m) in s.occupancy.iter().zip(&s.rays).zip(v.mask) {
+            // An unknown pixel (the spoon may be hidden there) is no evidence either way.
+            if m.is_nan() {
+                continue;
+            }
             let r = o - m;
             loss += r * r;
             if let Some((_, dm)) = ray {

@@ -167,11 +167,23 @@ impl Camera {
     /// A camera that frames the box `[lo, hi]` from the front (+z, turned 20° towards +x) and above, 40° down, with a
     /// 45° vertical field of view: the default view of a scene.
     pub fn framing(name: &str, lo: DVec3, hi: DVec3, width: u32, height: u32) -> Camera {
+        Camera::framing_at(name, lo, hi, width, height, 20.0)
+    }
+
+    /// [`Camera::framing`] from an azimuth of `azimuth_deg` (0: from +z, 90: from +x).
+    pub fn framing_at(
+        name: &str,
+        lo: DVec3,
+        hi: DVec3,
+        width: u32,
+        height: u32,
+        azimuth_deg: f64,
+    ) -> Camera {
         let centre = 0.5 * (lo + hi);
         let extent = (hi - lo).max_element().max(1e-6);
         let fov = 45f64.to_radians();
         let f = 0.5 * height as f64 / (0.5 * fov).tan();
-        let (el, az) = (40f64.to_radians(), 20f64.to_radians());
+        let (el, az) = (40f64.to_radians(), azimuth_deg.to_radians());
         let dir = DVec3::new(az.sin() * el.cos(), el.sin(), az.cos() * el.cos());
         let distance = 0.6 * extent / (0.5 * fov).tan();
         let spec = CameraSpec {

@@ -34,7 +34,18 @@ pub struct View<'a> {
     /// The floor, drawn as a checkerboard: its height (m) and its x–z extent
     /// `(x_lo, z_lo, x_hi, z_hi)`; `None` draws none.
     pub floor: Option<(f64, [f64; 4])>,
+    /// The tools' colour (linear RGB in 0–1): steel grey by default, a key colour for a
+    /// demonstration whose spoon is segmented by colour.
+    pub tool_colour: DVec3,
 }
+
+/// The tools' default colour.
+pub const STEEL: DVec3 = DVec3::new(0.78, 0.79, 0.82);
+/// What a pixel shows, nearest first (glass aside): [`NOTHING`], [`POWDER`], [`FLOOR`] or the
+/// scene index of the tool.
+pub const NOTHING: u8 = 255;
+pub const POWDER: u8 = 254;
+pub const FLOOR: u8 = 253;
 
 /// A sphere-tracing hit counts within 10 µm of the surface: a hundredth of the thinnest wall
 /// of the shipped scenes (1.5 mm) and far above the SDFs' round-off.
@@ -44,7 +55,6 @@ pub const HIT_EPS: f64 = 1e-5;
 pub const MAX_MARCH: usize = 256;
 
 const SAND: DVec3 = DVec3::new(0.86, 0.74, 0.50);
-const STEEL: DVec3 = DVec3::new(0.78, 0.79, 0.82);
 const GLASS: DVec3 = DVec3::new(0.55, 0.70, 0.90);
 const GLASS_ALPHA: f64 = 0.35;
 
@@ -146,14 +156,22 @@ fn splat(cam: &Camera, view: &View) -> (Vec<f64>, Vec<DVec3>) {
 
 /// Renders one frame: RGB8, row-major, `width × height × 3` bytes.
 pub fn render(cam: &Camera, view: &View) -> Vec<u8> {
+    render_layers(cam, view).0
+}
+
+/// [`render`], with what each pixel shows (row-major): the mask of a tool is the pixels that
+/// show its index.
+pub fn render_layers(cam: &Camera, view: &View) -> (Vec<u8>, Vec<u8>) {
     let (w, h) = (cam.width as usize, cam.height as usize);
     let (depth, normal) = splat(cam, view);
     let eye = cam.position;
-    let rows: Vec<Vec<u8>> = (0..h)
+    let rows: Vec<(Vec<u8>, Vec<u8>)> = (0..h)
         .into_par_iter()
         .map(|v| {
             let mut row = Vec::with_capacity(3 * w);
+            let mut ids = Vec::with_capacity(w);
             for u in 0..w {
+                let mut id = NOTHING;
                 let d = cam.ray(u as u32, v as u32);
                 let k = v * w + u;
                 // Sky: a vertical gradient.
@@ -163,6 +181,7 @@ pub fn render(cam: &Camera, view: &View) -> Vec<u8> {
                 if depth[k].is_finite() {
                     t_opaque = depth[k];
                     col = shade(SAND, normal[k], d);
+                    id = POWDER;
                 }
                 if let Some((y, [x0, z0, x1, z1])) = view.floor {
                     if d.y < 0.0 {
@@ -183,14 +202,16 @@ pub fn render(cam: &Camera, view: &View) -> Vec<u8> {
                             };
                             t_opaque = t;
                             col = shade(base, DVec3::Y, d);
+                            id = FLOOR;
                         }
                     }
                 }
-                for (_, kind, shape, pose) in view.colliders {
+                for (i, (_, kind, shape, pose)) in view.colliders.iter().enumerate() {
                     if *kind == ColliderKind::Tool {
                         if let Some(&(t, n)) = march(shape, pose, eye, d, t_opaque, 1).first() {
                             t_opaque = t;
-                            col = shade(STEEL, n, d);
+                            col = shade(view.tool_colour, n, d);
+                            id = i.min(FLOOR as usize - 1) as u8;
                         }
                     }
                 }
@@ -209,11 +230,13 @@ pub fn render(cam: &Camera, view: &View) -> Vec<u8> {
                     col.to_array()
                         .map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8),
                 );
+                ids.push(id);
             }
-            row
+            (row, ids)
         })
         .collect();
-    rows.concat()
+    let (rgb, ids): (Vec<Vec<u8>>, Vec<Vec<u8>>) = rows.into_iter().unzip();
+    (rgb.concat(), ids.concat())
 }
 
 /// PNG bytes of an RGB8 image (the encoder's output depends only on the pixels).
@@ -263,6 +286,7 @@ pub fn frames(sim: &mut crate::sim::Simulation, cameras: &[Camera]) -> Vec<(Stri
         particles: &particles,
         radius: particle_radius(&sim.scene),
         floor: Some(floor(&sim.scene)),
+        tool_colour: STEEL,
     };
     cameras
         .iter()
@@ -278,6 +302,12 @@ pub fn frames(sim: &mut crate::sim::Simulation, cameras: &[Camera]) -> Vec<(Stri
 /// The default camera of a scene: [`Camera::framing`] of the box of its particles and its
 /// containers (the tools move about them).
 pub fn default_camera(sim: &mut crate::sim::Simulation, width: u32, height: u32) -> Camera {
+    let (lo, hi) = scene_box(sim);
+    Camera::framing("default", lo, hi, width, height)
+}
+
+/// The box of a simulation's particles and containers (the domain where it has neither).
+pub fn scene_box(sim: &mut crate::sim::Simulation) -> (DVec3, DVec3) {
     let mut lo = DVec3::splat(f64::INFINITY);
     let mut hi = DVec3::splat(f64::NEG_INFINITY);
     for b in sim.body_states() {
@@ -294,8 +324,7 @@ pub fn default_camera(sim: &mut crate::sim::Simulation, width: u32, height: u32)
         }
     }
     if !(lo.is_finite() && hi.is_finite()) {
-        let (dlo, dhi) = sim.scene.domain();
-        (lo, hi) = (dlo, dhi);
+        return sim.scene.domain();
     }
-    Camera::framing("default", lo, hi, width, height)
+    (lo, hi)
 }
