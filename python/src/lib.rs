@@ -121,10 +121,8 @@ impl Scene {
     /// The grid's box (m): (lower corner, upper corner).
     #[getter]
     fn domain(&self) -> ([f64; 3], [f64; 3]) {
-        let s = &self.inner.simulation;
-        let lo = [s.domain_min.0, s.domain_min.1, s.domain_min.2];
-        let n = [s.cells.0, s.cells.1, s.cells.2];
-        (lo, std::array::from_fn(|k| lo[k] + n[k] as f64 * s.dx))
+        let (lo, hi) = self.inner.domain();
+        (lo.to_array(), hi.to_array())
     }
 
     /// Body names, in scene order.

@@ -113,9 +113,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "calibration" {
         return calibration_cmd(a);
     }
+    if a.study == "demonstration" {
+        return demonstration_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine or calibration",
+            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration or demonstration",
             a.study
         );
     }
@@ -446,6 +449,43 @@ fn refine_cmd(a: Args) -> Result<()> {
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("refinement.md"), md.as_bytes())?;
     print_page(&a, &md, start, "refinement.md", json!({ "cells": cells }));
+    Ok(())
+}
+
+/// `powderlab study demonstration`: five synthetic demonstrations filmed and fitted back.
+fn demonstration_cmd(a: Args) -> Result<()> {
+    use powderlab::study::demonstration::{self, Setup};
+    let scene_path = "scenes/powder_transport.ron";
+    let scene = powderlab::scene::Scene::load(scene_path)?;
+    let setup = Setup {
+        size: (160, 120),
+        every: 8,
+        noise: 0.02,
+    };
+    let pb = super::bar(demonstration::THETAS.len() as u64, a.json);
+    let pb2 = pb.clone();
+    let start = Instant::now();
+    let rows = demonstration::run(&scene, &a.out.join("demonstration"), &setup, &move |k| {
+        pb2.set_position(k as u64)
+    })?;
+    pb.finish_and_clear();
+    let machine = powderlab::study::optimizers::machine();
+    let md = demonstration::report(
+        &rows,
+        scene_path,
+        &setup,
+        "powderlab study demonstration",
+        &machine,
+    );
+    powderlab::util::create_output_dir(&a.results, "--results")?;
+    powderlab::util::write_atomic(&a.results.join("demonstration.md"), md.as_bytes())?;
+    print_page(
+        &a,
+        &md,
+        start,
+        "demonstration.md",
+        json!({ "rows": rows.len() }),
+    );
     Ok(())
 }
 

@@ -160,10 +160,15 @@ pub fn fit_pose(
                 DVec3::new(delta[3], delta[4], delta[5]) / scale,
             );
             let (lt, jt, rt) = gauss_newton(views, spoon, &trial, &taus, scale);
-            if total(&trial, lt) < total(&pose, l) {
+            let (before, after) = (total(&pose, l), total(&trial, lt));
+            if after < before {
                 (pose, l, jtj, jtr) = (trial, lt, jt, rt);
                 lambda = (lambda * 0.3).max(1e-9);
                 steps += 1;
+                // Converged at this τ: the loss no longer falls by a part in 10⁶.
+                if before - after < 1e-6 * before {
+                    break;
+                }
             } else {
                 lambda *= 10.0;
                 if lambda > 1e8 {

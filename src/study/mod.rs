@@ -21,6 +21,7 @@
 
 pub mod analysis;
 pub mod calibration;
+pub mod demonstration;
 pub mod directions;
 pub mod growth;
 pub mod landscape;

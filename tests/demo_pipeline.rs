@@ -1,0 +1,140 @@
+//! `powderlab demo make` films a demonstration that `demo fit` reads back and fits; a
+//! malformed demonstration folder gets one line naming the file and the field, and exit 2.
+
+#![cfg(feature = "lab")]
+
+use std::path::Path;
+use std::process::Command;
+
+fn powderlab() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_powderlab"))
+}
+
+fn temp(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("powderlab_{name}_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+#[test]
+fn a_made_demonstration_is_fitted_back() {
+    let dir = temp("demo");
+    let out = powderlab()
+        .args(["demo", "make", "tests/scenes/tiny_transport.ron"])
+        .args([
+            "--theta",
+            "0.4,-0.3,0.5,-0.6,0.2",
+            "--size",
+            "64x48",
+            "--every",
+            "10",
+        ])
+        .arg("--out")
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let demo = powderlab::demo::format::load(&dir).unwrap();
+    assert_eq!(demo.cameras.len(), 2);
+    let index: Vec<usize> = demo.frames.iter().map(|f| f.0).collect();
+    let (last, before) = index.split_last().unwrap();
+    assert!(
+        before.iter().enumerate().all(|(k, &i)| i == 10 * k),
+        "{index:?}"
+    );
+    assert!(*last > 100 && before.len() >= 10, "{index:?}");
+    // The spoon is seen in every frame, and powder is marked unknown in some.
+    for (_, views) in &demo.frames {
+        assert!(views.iter().any(|m| m.contains(&1.0)));
+    }
+    assert!(demo
+        .frames
+        .iter()
+        .flat_map(|f| &f.1)
+        .any(|m| m.iter().any(|v| v.is_nan())));
+    let out = powderlab()
+        .args(["demo", "fit"])
+        .arg(&dir)
+        .args(["--scene", "tests/scenes/tiny_transport.ron"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let fit: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("fit.json")).unwrap()).unwrap();
+    let theta: Vec<f64> = serde_json::from_value(fit["theta"].clone()).unwrap();
+    assert_eq!(theta.len(), 5);
+    assert!(theta.iter().all(|t| (-1.0..=1.0).contains(t)));
+    // 64×48 pixels of about 2.5 mm at the spoon: the median pose within a pixel.
+    let median_mm = fit["score"]["pose_mm"][0].as_f64().unwrap();
+    assert!(median_mm < 2.5, "median pose error {median_mm} mm");
+}
+
+#[test]
+fn a_malformed_demonstration_is_one_line_naming_the_file_and_field() {
+    let dir = temp("bad_demo");
+    std::fs::create_dir_all(&dir).unwrap();
+    let camera = r#"{"name": "front", "width": 4, "height": 3, "fx": 4, "fy": 4, "position": [0, 0.1, 0.3], "look_at": [0, 0, 0]}"#;
+    let frame = r#"{"index": 0, "images": {"front": "f.png"}}"#;
+    let png = powderlab::render::encode_png(4, 3, &[0; 36]);
+    std::fs::write(dir.join("f.png"), &png).unwrap();
+    std::fs::write(
+        dir.join("small.png"),
+        powderlab::render::encode_png(2, 2, &[0; 12]),
+    )
+    .unwrap();
+    let cases = [
+        (
+            format!(r#"{{"fps": 0, "cameras": [{camera}], "frames": [{frame}]}}"#),
+            "field `fps`",
+        ),
+        (
+            format!(r#"{{"fps": 100, "cameras": [{camera}], "frames": []}}"#),
+            "field `frames`",
+        ),
+        (
+            format!(r#"{{"fps": 100, "cameras": [{camera}], "frames": [{frame}]}}"#),
+            "field `frames[0].masks.front`",
+        ),
+        (
+            format!(
+                r#"{{"fps": 100, "cameras": [{camera}], "key_colour": [200, 50, 50], "frames": [{{"index": 0, "images": {{"front": "small.png"}}}}]}}"#
+            ),
+            "field `frames[0].images.front`: small.png is 2×2",
+        ),
+        (
+            format!(
+                r#"{{"fps": 100, "cameras": [{camera}], "frames": [{{"index": 0, "images": {{"front": "none.png"}}}}], "key_colour": [1, 2, 3]}}"#
+            ),
+            "none.png: cannot read it",
+        ),
+        (
+            format!(r#"{{"fps": 100, "camera": [{camera}]}}"#),
+            "unknown field `camera`",
+        ),
+    ];
+    for (text, expected) in &cases {
+        std::fs::write(dir.join("demo.json"), text).unwrap();
+        let e = powderlab::demo::format::load(&dir).err().unwrap();
+        let json = dir.join("demo.json");
+        assert!(e.starts_with(&json.display().to_string()), "{e}");
+        assert!(e.contains(expected), "{e}");
+        assert!(!e.contains('\n'), "{e}");
+    }
+    let out = powderlab()
+        .args(["demo", "fit"])
+        .arg(&dir)
+        .args(["--scene", "tests/scenes/tiny_transport.ron"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("demo.json"));
+    assert!(!Path::new(&dir.join("fit.json")).exists());
+}
