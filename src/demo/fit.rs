@@ -12,7 +12,6 @@ use super::format::Demo;
 use super::skill_fit::{fit_theta, pose_points};
 use super::track::{fit_pose, TrackOptions, View};
 use crate::math::pose::Pose;
-use crate::math::sdf::Shape;
 use crate::rollout::skill_tool;
 use crate::scene::{ControlSpec, Scene};
 use glam::DVec3;
@@ -59,29 +58,13 @@ pub fn fit(
 ) -> anyhow::Result<DemoFit> {
     let i = skill_tool(scene)?;
     let tool = &scene.colliders[i];
-    let Shape::Spoon {
-        bowl_radius,
-        bowl_depth,
-        thickness,
-        handle_length,
-        handle_radius,
-        handle_rise,
-    } = tool.shape
-    else {
+    let Some(spoon) = tool.shape.spoon() else {
         anyhow::bail!(
             "{}: colliders[{i}] ('{}') is a {}: demo fit tracks a spoon",
             scene.path.display(),
             tool.name,
             tool.shape.name()
         );
-    };
-    let spoon = crate::math::sdf::Spoon {
-        bowl_radius,
-        bowl_depth,
-        thickness,
-        handle_length,
-        handle_radius,
-        handle_rise,
     };
     let Some(ControlSpec::Skill(sk)) = &tool.control else {
         unreachable!("skill_tool found a Skill control")

@@ -186,17 +186,7 @@ mod tests {
     use super::*;
     use crate::math::pose::quat_from_rotation_vector;
     use crate::render::camera::CameraSpec;
-
-    fn spoon() -> Spoon {
-        Spoon {
-            bowl_radius: 0.011,
-            bowl_depth: 0.007,
-            thickness: 0.0015,
-            handle_length: 0.03,
-            handle_radius: 0.0025,
-            handle_rise: 0.05,
-        }
-    }
+    use crate::render::silhouette::tests::spoon;
 
     fn camera(name: &str, position: [f64; 3]) -> Camera {
         Camera::from_spec(&CameraSpec {

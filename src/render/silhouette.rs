@@ -202,11 +202,12 @@ pub fn reshaped(spoon: &Spoon, d: [f64; 3]) -> Spoon {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::render::camera::CameraSpec;
 
-    fn spoon() -> Spoon {
+    /// The tiny scene's spoon.
+    pub(crate) fn spoon() -> Spoon {
         Spoon {
             bowl_radius: 0.011,
             bowl_depth: 0.007,

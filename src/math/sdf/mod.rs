@@ -88,7 +88,7 @@ fn sign(x: f64) -> f64 {
 impl Shape {
     /// The spoon's dimensions, if it is one.
     #[inline(always)]
-    fn spoon(&self) -> Option<Spoon> {
+    pub fn spoon(&self) -> Option<Spoon> {
         match *self {
             Shape::Spoon {
                 bowl_radius,
