@@ -9,7 +9,7 @@
 //! later change, and a demonstrator's different spoon is not yet mapped).
 
 use super::format::Demo;
-use super::skill_fit::{fit_theta, pose_points};
+use super::skill_fit::{fit_theta, join_frames, pose_points};
 use super::track::{fit_pose, TrackOptions, View};
 use crate::math::pose::Pose;
 use crate::rollout::skill_tool;
@@ -116,18 +116,13 @@ pub fn fit(
         progress(f + 1, demo.frames.len());
     }
     // The tracked path at every global step between the frames.
-    let mut dense = Vec::new();
-    for (w, p) in demo.frames.windows(2).zip(poses.windows(2)) {
-        let (k0, k1) = (w[0].0, w[1].0);
-        for k in k0..k1.max(k0 + 1) {
-            let s = (k - k0) as f64 / (k1 - k0).max(1) as f64;
-            dense.push(Pose {
-                translation: p[0].translation.lerp(p[1].translation, s),
-                rotation: p[0].rotation.slerp(p[1].rotation, s),
-            });
-        }
-    }
-    dense.push(*poses.last().expect("at least one frame"));
+    let frames: Vec<(usize, Pose)> = demo
+        .frames
+        .iter()
+        .map(|f| f.0)
+        .zip(poses.iter().copied())
+        .collect();
+    let dense = join_frames(&frames);
     let lever = tool.shape.bounding_radius();
     let points: Vec<[DVec3; 2]> = dense.iter().map(|p| pose_points(p, lever)).collect();
     let th = fit_theta(

@@ -38,6 +38,24 @@ pub fn trajectory(start: &Pose, controls: &[[f64; 6]]) -> Vec<Pose> {
     out
 }
 
+/// Tracked poses at frames `(global step, pose)`, in order, joined by straight lines (lerp and
+/// slerp) into one pose per global step from the first frame to the last.
+pub fn join_frames(frames: &[(usize, Pose)]) -> Vec<Pose> {
+    let mut out = Vec::new();
+    for w in frames.windows(2) {
+        let ((k0, a), (k1, b)) = (w[0], w[1]);
+        for k in k0..k1.max(k0 + 1) {
+            let s = (k - k0) as f64 / (k1 - k0).max(1) as f64;
+            out.push(Pose {
+                translation: a.translation.lerp(b.translation, s),
+                rotation: a.rotation.slerp(b.rotation, s),
+            });
+        }
+    }
+    out.extend(frames.last().map(|f| f.1));
+    out
+}
+
 /// The adjoint of [`trajectory`] followed by [`pose_points`]: `∂L/∂u` per step from `∂L/∂`
 /// each pose's two points. With world-frame rotation perturbations (`δR = [δθ]×R`),
 /// `R_{k+1} = exp(r_k)·R_k` gives `δθ_{k+1} = exp(r_k)·δθ_k + J_l(r_k)·δr_k`.
@@ -318,21 +336,11 @@ mod frame_rate {
         .controls(dt, bottom);
         let poses = trajectory(&start, &u);
         let last = poses.len() - 1;
-        let frames: Vec<usize> = (0..=last)
+        let frames: Vec<(usize, Pose)> = (0..=last)
             .filter(|k| k % every == 0 || *k == last)
+            .map(|k| (k, poses[k]))
             .collect();
-        let mut joined = Vec::new();
-        for w in frames.windows(2) {
-            let (a, b) = (poses[w[0]], poses[w[1]]);
-            for k in w[0]..w[1] {
-                let s = (k - w[0]) as f64 / (w[1] - w[0]) as f64;
-                joined.push(Pose {
-                    translation: a.translation.lerp(b.translation, s),
-                    rotation: a.rotation.slerp(b.rotation, s),
-                });
-            }
-        }
-        joined.push(poses[last]);
+        let joined = join_frames(&frames);
         let points: Vec<[DVec3; 2]> = joined.iter().map(|p| pose_points(p, lever)).collect();
         let starts = [sk.theta, [0.0; 5]];
         let fit = fit_theta(sk, &starts, &start, dt, bottom, lever, &points, 1500);

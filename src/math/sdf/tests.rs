@@ -270,14 +270,10 @@ fn surely_clear_claims_only_what_the_sdf_says() {
 
 #[test]
 fn spoon_shape_derivatives_match_central_differences() {
-    let base = Spoon {
-        bowl_radius: 0.02,
-        bowl_depth: 0.012,
-        thickness: 0.0015,
-        handle_length: 0.1,
-        handle_radius: 0.003,
-        handle_rise: 0.02,
-    };
+    let base = shapes()
+        .iter()
+        .find_map(Shape::spoon)
+        .expect("the test shapes have a spoon");
     let with = |k: usize, d: f64| {
         let mut s = base;
         match k {
