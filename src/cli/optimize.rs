@@ -79,9 +79,33 @@ pub struct Args {
     /// Memory budget of a backward pass's tape in MB.
     #[arg(long, default_value_t = 1024)]
     budget_mb: usize,
+    /// Start every seed at the Θ in this JSON file (`demo fit`'s fit.json, or any object with
+    /// a "theta" of five values in [-1, 1]) instead of at the seed's random Θ_init.
+    #[arg(long)]
+    init: Option<PathBuf>,
     /// Print the summary as one JSON object.
     #[arg(long)]
     json: bool,
+}
+
+/// The Θ of a JSON file's "theta" field, or a one-line error naming the file and the field.
+pub fn read_theta(path: &std::path::Path) -> Result<[f64; 5]> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read the file", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| anyhow::anyhow!("{}: not JSON ({e})", path.display()))?;
+    let theta: Option<[f64; 5]> = v["theta"].as_array().and_then(|a| {
+        let xs: Vec<f64> = a.iter().filter_map(|x| x.as_f64()).collect();
+        <[f64; 5]>::try_from(xs.as_slice()).ok()
+    });
+    match theta {
+        Some(t) if t.iter().all(|x| (-1.0..=1.0).contains(x)) => Ok(t),
+        _ => bail!(
+            "{}: theta = {}: expected five numbers in [-1, 1] (the fit.json of `powderlab demo fit`)",
+            path.display(),
+            v["theta"]
+        ),
+    }
 }
 
 /// Runs the command.
@@ -108,8 +132,10 @@ pub fn run(args: Args) -> Result<()> {
         equal_compute,
         hybrid_global,
         budget_mb,
+        init,
         json: json_out,
     } = args;
+    let init = init.as_deref().map(read_theta).transpose()?;
     use powderlab::optim::{self, Method};
     // No --method, or `default`: the benchmark's verdict at equal compute.
     let default_set = method.is_empty() || method == ["default"];
@@ -209,6 +235,7 @@ pub fn run(args: Args) -> Result<()> {
         },
         equal_compute,
         tape_budget: budget_mb << 20,
+        init,
     };
     if !json_out {
         eprintln!(

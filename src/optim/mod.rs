@@ -163,9 +163,18 @@ pub struct Settings {
     pub equal_compute: bool,
     /// Memory budget of a backward pass's tape (bytes).
     pub tape_budget: usize,
+    /// Start every seed here (Θ_demo from `demo fit`) instead of at [`theta_init`]; the
+    /// methods' own randomness still follows the seed.
+    #[serde(default)]
+    pub init: Option<[f64; 5]>,
 }
 
 impl Settings {
+    /// Where seed `k` starts.
+    pub fn start(&self, k: usize) -> [f64; 5] {
+        self.init.unwrap_or_else(|| theta_init(k))
+    }
+
     /// Rollouts per seed that `method` may run (the hybrid's are its budget in forward
     /// rollouts; it runs fewer).
     pub fn epochs_for(&self, method: Method) -> usize {
@@ -443,6 +452,7 @@ mod tests {
             hybrid: Default::default(),
             equal_compute,
             tape_budget: 0,
+            init: None,
         }
     }
 

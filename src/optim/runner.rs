@@ -8,7 +8,7 @@ use super::journal::{Journal, Record};
 use super::problem::Problem;
 use super::rmsprop::RmsState;
 use super::sac::Sac;
-use super::{method_seed, report, smoothing, sobol_thetas, theta_init, Method, Settings};
+use super::{method_seed, report, smoothing, sobol_thetas, Method, Settings};
 use crate::util::{write_atomic, SplitMix64};
 use anyhow::Context;
 use indicatif::ProgressBar;
@@ -123,7 +123,7 @@ impl Runner<'_> {
         let rms = s.rmsprop_for(method);
         let mut states: Vec<RmsState> = (0..s.seeds)
             .map(|k| RmsState {
-                theta: theta_init(k),
+                theta: s.start(k),
                 mean_square: [0.0; 5],
             })
             .collect();
@@ -156,7 +156,7 @@ impl Runner<'_> {
         let rms = s.rmsprop_for(Method::Smoothed);
         let mut states: Vec<RmsState> = (0..s.seeds)
             .map(|k| RmsState {
-                theta: theta_init(k),
+                theta: s.start(k),
                 mean_square: [0.0; 5],
             })
             .collect();
@@ -226,7 +226,7 @@ impl Runner<'_> {
 
     pub(super) fn sac(&self, s: &Settings) -> anyhow::Result<()> {
         let mut agents: Vec<Sac> = (0..s.seeds)
-            .map(|k| Sac::new(s.sac, theta_init(k), method_seed(Method::Sac, k)))
+            .map(|k| Sac::new(s.sac, s.start(k), method_seed(Method::Sac, k)))
             .collect::<candle_core::Result<_>>()?;
         // The temperature and the reward's standardisation, per seed and episode.
         let mut log = String::from("seed,episode,alpha,loss_mean,loss_std\n");
@@ -259,7 +259,7 @@ impl Runner<'_> {
                 let mut rng = SplitMix64(method_seed(Method::Random, k));
                 (0..s.epochs).map(move |i| {
                     let th = if i == 0 {
-                        theta_init(k)
+                        s.start(k)
                     } else {
                         std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))
                     };
@@ -309,7 +309,7 @@ impl Runner<'_> {
             .iter()
             .enumerate()
             .map(|(k, f)| {
-                cmaes::CMAESOptions::new(theta_init(k).to_vec(), s.cmaes.sigma0)
+                cmaes::CMAESOptions::new(s.start(k).to_vec(), s.cmaes.sigma0)
                     .population_size(lambda)
                     .seed(method_seed(Method::Cmaes, k))
                     .build(f)
@@ -345,7 +345,7 @@ impl Runner<'_> {
         let budget = s.epochs as f64;
         let global = ((s.hybrid.global * budget).floor() as usize).clamp(1, s.epochs);
         let points = |k: usize| -> Vec<[f64; 5]> {
-            let mut v = vec![theta_init(k)];
+            let mut v = vec![s.start(k)];
             v.extend(sobol_thetas(
                 s.epochs - 1,
                 method_seed(Method::Hybrid, k) as u32,

@@ -376,6 +376,7 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
             hybrid: Default::default(),
             equal_compute: true,
             tape_budget: TAPE_BUDGET,
+            init: None,
         };
         let resume = out.join("settings.json").exists();
         if !o.quiet {
