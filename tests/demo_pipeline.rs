@@ -1,10 +1,14 @@
-//! `powderlab demo make` films a demonstration that `demo fit` reads back and fits; a
-//! malformed demonstration folder gets one line naming the file and the field, and exit 2.
+//! `powderlab demo make` films a demonstration (with a demonstrator's spoon of its own) that
+//! `demo fit` reads back and fits, writing the fit and a recording of the track; `optimize
+//! --init` takes the fit; a malformed demonstration folder or init file gets one line naming
+//! the file and the field, and exit 2.
 
-#![cfg(feature = "lab")]
+#![cfg(all(feature = "lab", feature = "rerun"))]
 
 use std::path::Path;
 use std::process::Command;
+
+mod common;
 
 fn powderlab() -> Command {
     Command::new(env!("CARGO_BIN_EXE_powderlab"))
@@ -28,6 +32,9 @@ fn a_made_demonstration_is_fitted_back() {
             "64x48",
             "--every",
             "10",
+            // The demonstrator's spoon: the scene's is 11, 7 and 30 mm.
+            "--spoon",
+            "0.012,0.0065,0.034",
         ])
         .arg("--out")
         .arg(&dir)
@@ -75,6 +82,58 @@ fn a_made_demonstration_is_fitted_back() {
     // 64×48 pixels of about 2.5 mm at the spoon: the median pose within a pixel.
     let median_mm = fit["score"]["pose_mm"][0].as_f64().unwrap();
     assert!(median_mm < 2.5, "median pose error {median_mm} mm");
+    // The shape fit brings the handle, 4 mm longer than the scene's (more than a pixel), to
+    // within a pixel's 2.5 mm; the joint fit lowers the silhouette loss.
+    let handle = fit["spoon"]["handle_length"].as_f64().unwrap();
+    assert!((handle - 0.034).abs() < 0.0025, "handle {handle} m");
+    let losses: Vec<f64> =
+        serde_json::from_value(fit["silhouette_loss_tracked_then_joint"].clone()).unwrap();
+    assert!(losses[1] < losses[0], "{losses:?}");
+    // The recording of the track over the frames opens in the official Rerun CLI.
+    let rrd = dir.join("fit.rrd");
+    common::assert_rrd_has(
+        &rrd,
+        &[
+            "/world/cameras/front/image",
+            "/world/cameras/front/track",
+            "/world/cameras/side/track",
+            "/world/tracked_spoon",
+        ],
+    );
+    // `optimize --init` reads Θ_demo from the fit; a file without a valid Θ is one line naming
+    // it and the field, exit 2.
+    std::fs::write(dir.join("bad.json"), r#"{"theta": [0.1, 2.0, 0, 0, 0]}"#).unwrap();
+    let out = powderlab()
+        .args(["optimize", "tests/scenes/tiny_transport.ron", "--init"])
+        .arg(dir.join("bad.json"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.json: theta = [0.1,2.0,0,0,0]"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    // With the fit, every seed's first rollout is Θ_demo.
+    let out = powderlab()
+        .args(["optimize", "tests/scenes/tiny_transport.ron", "--init"])
+        .arg(dir.join("fit.json"))
+        .args([
+            "--method", "random", "--epochs", "1", "--seeds", "2", "--json", "--out",
+        ])
+        .arg(dir.join("opt"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let seeds = summary["methods"]["random"]["seeds"].as_array().unwrap();
+    assert_eq!(seeds.len(), 2);
+    for s in seeds {
+        let t: Vec<f64> = serde_json::from_value(s["theta_init"].clone()).unwrap();
+        assert_eq!(t, theta, "seed {}", s["seed"]);
+    }
 }
 
 #[test]

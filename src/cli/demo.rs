@@ -59,6 +59,10 @@ struct MakeArgs {
     no_masks: bool,
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// The demonstrator's spoon, when not the scene's: BOWL_RADIUS,BOWL_DEPTH,HANDLE_LENGTH (m;
+    /// its thickness and handle radius and rise are the scene's).
+    #[arg(long, value_delimiter = ',')]
+    spoon: Vec<f64>,
     #[arg(long, default_value = "demo")]
     out: PathBuf,
 }
@@ -73,6 +77,13 @@ struct FitArgs {
     /// Where to write the fit (default: DEMO/fit.json).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Take the demonstrator's spoon to be the scene's instead of fitting its shape.
+    #[arg(long)]
+    keep_shape: bool,
+    /// Where to write the Rerun recording of the track over the frames (default: the fit's
+    /// path with .rrd).
+    #[arg(long)]
+    rrd: Option<PathBuf>,
 }
 
 /// Runs the command.
@@ -105,6 +116,26 @@ fn make(a: MakeArgs) -> Result<()> {
         );
     };
     let scene = Scene::load(&a.scene)?;
+    let spoon = match a.spoon.as_slice() {
+        [] => None,
+        &[r, d, l] => {
+            let base = powderlab::rollout::skill_tool(&scene)
+                .ok()
+                .and_then(|i| scene.colliders[i].shape.spoon());
+            let Some(base) = base else {
+                bail!("--spoon: {} has no spoon with a skill to replace", a.scene.display());
+            };
+            let s = powderlab::render::silhouette::reshaped(
+                &base,
+                [r - base.bowl_radius, d - base.bowl_depth, l - base.handle_length],
+            );
+            if let Err(e) = s.validate() {
+                bail!("--spoon {r},{d},{l}: {} = {} is not {}", e.field, e.value, e.expected);
+            }
+            Some(s)
+        }
+        v => bail!("--spoon {v:?}: expected BOWL_RADIUS,BOWL_DEPTH,HANDLE_LENGTH in metres, such as 0.016,0.008,0.045"),
+    };
     let cameras: Vec<Camera> = match &a.cameras {
         Some(p) => camera::load(p).map_err(anyhow::Error::msg)?,
         None => {
@@ -126,6 +157,7 @@ fn make(a: MakeArgs) -> Result<()> {
         noise: a.noise,
         masks: !a.no_masks,
         seed: a.seed,
+        spoon,
     };
     let pb = super::bar(0, false);
     let truth = demo::make::make(&scene, &opts, &a.out, |k, n| {
@@ -145,14 +177,21 @@ fn make(a: MakeArgs) -> Result<()> {
 fn fit(a: FitArgs) -> Result<()> {
     let scene = Scene::load(&a.scene)?;
     let d = demo::format::load(&a.demo).map_err(anyhow::Error::msg)?;
-    let pb = super::bar(d.frames.len() as u64, false);
-    let r = demo::fit::fit(&d, &scene, &FitOptions::default(), |k, _| {
+    let opts = FitOptions {
+        fit_shape: !a.keep_shape,
+        ..FitOptions::default()
+    };
+    let pb = super::bar(0, false);
+    let r = demo::fit::fit(&d, &scene, &opts, |k, n| {
+        pb.set_length(n as u64);
         pb.set_position(k as u64)
     })?;
     pb.finish_and_clear();
     let mut out = json!({
         "theta": r.theta,
         "path_loss_m2": r.path_loss,
+        "spoon": {"bowl_radius": r.spoon.bowl_radius, "bowl_depth": r.spoon.bowl_depth, "handle_length": r.spoon.handle_length},
+        "silhouette_loss_tracked_then_joint": r.rounds,
         "frames": d.frames.iter().zip(&r.poses).zip(&r.silhouette_loss).map(|(((k, _), p), l)| json!({
             "index": k,
             "translation": p.translation.to_array(),
@@ -161,9 +200,12 @@ fn fit(a: FitArgs) -> Result<()> {
         })).collect::<Vec<_>>(),
     });
     println!(
-        "Θ_demo = {:?} (path loss {:.3e} m²)",
+        "Θ_demo = {:?} (path loss {:.3e} m²); spoon: bowl radius {:.2} mm, bowl depth {:.2} mm, handle {:.1} mm",
         r.theta.map(|t| (t * 1e4).round() / 1e4),
-        r.path_loss
+        r.path_loss,
+        1e3 * r.spoon.bowl_radius,
+        1e3 * r.spoon.bowl_depth,
+        1e3 * r.spoon.handle_length
     );
     // A synthetic demonstration carries its truth: score against it.
     let truth_path = a.demo.join("truth.json");
@@ -173,10 +215,15 @@ fn fit(a: FitArgs) -> Result<()> {
                 .with_context(|| truth_path.display().to_string())?,
         )
         .with_context(|| format!("{}: not a truth file", truth_path.display()))?;
-        let s = demo::fit::score(&r, &t);
+        let scene_spoon = scene.colliders[powderlab::rollout::skill_tool(&scene)?]
+            .shape
+            .spoon()
+            .expect("demo fit tracked the skill's spoon");
+        let s = demo::fit::score(&r, &t, &scene_spoon);
         println!(
-            "against {}: pose error median {:.2} mm / {:.2}°, 95th percentile {:.2} mm / {:.2}°; Θ error mean {:.4}, largest {:.4}",
-            truth_path.display(), s.pose_mm[0], s.pose_deg[0], s.pose_mm[1], s.pose_deg[1], s.theta_mean, s.theta_max
+            "against {}: pose error median {:.2} mm / {:.2}°, 95th percentile {:.2} mm / {:.2}°; Θ error mean {:.4}, largest {:.4}; shape error {:.1} %, {:.1} %, {:.1} %",
+            truth_path.display(), s.pose_mm[0], s.pose_deg[0], s.pose_mm[1], s.pose_deg[1], s.theta_mean, s.theta_max,
+            s.shape_pct[0], s.shape_pct[1], s.shape_pct[2]
         );
         out["score"] = serde_json::to_value(&s)?;
     }
@@ -184,5 +231,12 @@ fn fit(a: FitArgs) -> Result<()> {
     powderlab::util::write_atomic(&path, serde_json::to_string_pretty(&out)?.as_bytes())
         .with_context(|| format!("{}: cannot write the fit", path.display()))?;
     eprintln!("fit: {}", path.display());
+    #[cfg(feature = "rerun")]
+    {
+        let rrd = a.rrd.unwrap_or_else(|| path.with_extension("rrd"));
+        demo::overlay::write(&rrd, &d, &r, &r.spoon)
+            .with_context(|| format!("{}: cannot write the recording", rrd.display()))?;
+        eprintln!("recording: {}", rrd.display());
+    }
     Ok(())
 }

@@ -459,7 +459,7 @@ fn demonstration_cmd(a: Args) -> Result<()> {
     let scene = powderlab::scene::Scene::load(scene_path)?;
     let setup = Setup {
         size: (160, 120),
-        every: 8,
+        every: 4,
         noise: 0.02,
     };
     let pb = super::bar(demonstration::THETAS.len() as u64, a.json);

@@ -1,17 +1,22 @@
-//! Fitting a demonstration (`powderlab demo fit`): the spoon's pose tracked frame by frame
-//! ([`track`](super::track)), each frame started from the previous frames' constant-velocity
-//! prediction and from the last pose (the better fit kept), and pulled towards the prediction
-//! by a smoothness prior; then Θ fitted to the tracked path
-//! ([`skill_fit`](super::skill_fit)), the path first resampled at every global step between
-//! the frames, so that both sequences the path loss aligns are equally dense.
+//! Fitting a demonstration (`powderlab demo fit`), in seed B's alternation:
 //!
-//! The spoon's shape is the scene's (seed B also fits the shape; here that step is left to a
-//! later change, and a demonstrator's different spoon is not yet mapped).
+//! 1. the spoon's pose tracked frame by frame ([`track`](super::track)), each frame started
+//!    from the previous frames' constant-velocity prediction or from the last pose, whichever
+//!    matches the masks better, and pulled towards the prediction by a smoothness prior;
+//! 2. the spoon's shape fitted to all frames jointly with their poses
+//!    ([`shape`](super::shape); seed B alternates the two, which stalled here);
+//! 3. the tracked path carried over to the robot's spoon through the bowls' frames
+//!    ([`spoon_map`](super::spoon_map)), resampled at every global step between the frames
+//!    (so both sequences the path loss aligns are equally dense), and Θ fitted to it
+//!    ([`skill_fit`](super::skill_fit)).
 
 use super::format::Demo;
+use super::shape::{dimensions, refine};
 use super::skill_fit::{fit_theta, join_frames, pose_points};
-use super::track::{fit_pose, TrackOptions, View};
+use super::spoon_map::{demonstrated_skill, transfer};
+use super::track::{fit_pose, silhouette_loss, TrackOptions, View};
 use crate::math::pose::Pose;
+use crate::math::sdf::Spoon;
 use crate::rollout::skill_tool;
 use crate::scene::{ControlSpec, Scene};
 use glam::DVec3;
@@ -23,6 +28,8 @@ pub struct FitOptions {
     /// The smoothness prior's scale (m): a pose this far from the prediction costs as much
     /// as one wrong pixel.
     pub smoothness: f64,
+    /// Fit the demonstrator's spoon with the poses; false keeps the scene's spoon.
+    pub fit_shape: bool,
     /// Adam steps of the Θ fit from each start.
     pub theta_iterations: usize,
 }
@@ -32,6 +39,7 @@ impl Default for FitOptions {
         FitOptions {
             track: TrackOptions::default(),
             smoothness: 0.01,
+            fit_shape: true,
             theta_iterations: 1500,
         }
     }
@@ -40,48 +48,45 @@ impl Default for FitOptions {
 /// What a fit gives.
 #[derive(Clone, Debug)]
 pub struct DemoFit {
-    /// The tracked pose of each frame.
+    /// The tracked pose of each frame (the demonstrator's spoon).
     pub poses: Vec<Pose>,
     /// Each frame's silhouette loss at the end of its tracking.
     pub silhouette_loss: Vec<f64>,
+    /// The demonstrator's spoon (fitted, or the scene's).
+    pub spoon: Spoon,
+    /// The total silhouette loss after the tracking, and after the joint fit of the shape and
+    /// the poses.
+    pub rounds: Vec<f64>,
     pub theta: [f64; 5],
     /// The path loss at Θ (m²).
     pub path_loss: f64,
 }
 
-/// Tracks and fits; `progress` is called after each frame with the frames done and the total.
-pub fn fit(
+/// The frames' views, in the cameras' order.
+fn views(demo: &Demo) -> Vec<Vec<View<'_>>> {
+    demo.frames
+        .iter()
+        .map(|(_, masks)| {
+            demo.cameras
+                .iter()
+                .zip(masks)
+                .map(|(camera, mask)| View { camera, mask })
+                .collect()
+        })
+        .collect()
+}
+
+/// Tracks every frame, the first from the scene's `start`.
+fn track_all(
     demo: &Demo,
-    scene: &Scene,
-    opts: &FitOptions,
-    mut progress: impl FnMut(usize, usize),
-) -> anyhow::Result<DemoFit> {
-    let i = skill_tool(scene)?;
-    let tool = &scene.colliders[i];
-    let Some(spoon) = tool.shape.spoon() else {
-        anyhow::bail!(
-            "{}: colliders[{i}] ('{}') is a {}: demo fit tracks a spoon",
-            scene.path.display(),
-            tool.name,
-            tool.shape.name()
-        );
-    };
-    let Some(ControlSpec::Skill(sk)) = &tool.control else {
-        unreachable!("skill_tool found a Skill control")
-    };
-    let start = Scene::collider_pose(tool);
-    let track_opts = TrackOptions {
-        prior_weight: 1.0 / (opts.smoothness * opts.smoothness),
-        ..opts.track.clone()
-    };
+    frames: &[Vec<View>],
+    spoon: &Spoon,
+    start: Pose,
+    opts: &TrackOptions,
+    progress: &mut dyn FnMut(),
+) -> (Vec<Pose>, Vec<f64>) {
     let (mut poses, mut losses): (Vec<Pose>, Vec<f64>) = (Vec::new(), Vec::new());
-    for (f, (_, masks)) in demo.frames.iter().enumerate() {
-        let views: Vec<View> = demo
-            .cameras
-            .iter()
-            .zip(masks)
-            .map(|(camera, mask)| View { camera, mask })
-            .collect();
+    for (f, views) in frames.iter().enumerate() {
         // Constant velocity from the last two frames, per unit of frame index.
         let predicted = match poses.as_slice() {
             [] => start,
@@ -97,36 +102,90 @@ pub fn fit(
                 b.displaced((b.translation - a.translation) * s, dr)
             }
         };
-        let prior = if poses.is_empty() {
-            None
-        } else {
-            Some(&predicted)
-        };
-        // From the prediction and from the last pose (a phase's end breaks the prediction);
-        // the lower silhouette loss wins.
-        let mut t = fit_pose(&views, &spoon, predicted, prior, &track_opts);
-        if let Some(last) = poses.last() {
-            let u = fit_pose(&views, &spoon, *last, prior, &track_opts);
-            if u.loss < t.loss {
-                t = u;
+        let prior = (!poses.is_empty()).then_some(&predicted);
+        // From the prediction or from the last pose (a phase's end breaks the prediction),
+        // whichever matches the masks better at the first τ.
+        let from = match poses.last() {
+            Some(last) => {
+                let px = opts.tau_px.0;
+                let at = |p: &Pose| silhouette_loss(views, spoon, p, px);
+                if at(last) < at(&predicted) {
+                    *last
+                } else {
+                    predicted
+                }
             }
-        }
+            None => predicted,
+        };
+        let t = fit_pose(views, spoon, from, prior, opts);
         poses.push(t.pose);
         losses.push(t.loss);
-        progress(f + 1, demo.frames.len());
+        progress();
     }
-    // The tracked path at every global step between the frames.
-    let frames: Vec<(usize, Pose)> = demo
+    (poses, losses)
+}
+
+/// Tracks and fits; `progress` is called after each tracked frame with the frames done and
+/// the most there may be (every shape round tracks them all again).
+pub fn fit(
+    demo: &Demo,
+    scene: &Scene,
+    opts: &FitOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<DemoFit> {
+    let i = skill_tool(scene)?;
+    let tool = &scene.colliders[i];
+    let Some(robot) = tool.shape.spoon() else {
+        anyhow::bail!(
+            "{}: colliders[{i}] ('{}') is a {}: demo fit tracks a spoon",
+            scene.path.display(),
+            tool.name,
+            tool.shape.name()
+        );
+    };
+    let Some(ControlSpec::Skill(sk)) = &tool.control else {
+        unreachable!("skill_tool found a Skill control")
+    };
+    let start = Scene::collider_pose(tool);
+    let track_opts = TrackOptions {
+        prior_weight: 1.0 / (opts.smoothness * opts.smoothness),
+        ..opts.track.clone()
+    };
+    let frames = views(demo);
+    let total = frames.len();
+    let mut done = 0;
+    let mut tick = || {
+        done += 1;
+        progress(done, total);
+    };
+    let (poses, losses) = track_all(demo, &frames, &robot, start, &track_opts, &mut tick);
+    let mut rounds = vec![losses.iter().sum::<f64>()];
+    let (spoon, poses, losses) = if opts.fit_shape {
+        let r = refine(
+            &frames,
+            robot,
+            &poses,
+            opts.track.tau_px,
+            opts.track.iterations,
+        );
+        rounds.push(r.losses.iter().sum());
+        (r.spoon, r.poses, r.losses)
+    } else {
+        (robot, poses, losses)
+    };
+    // The tracked path, carried over to the robot's spoon, at every global step between the
+    // frames.
+    let carried: Vec<(usize, Pose)> = demo
         .frames
         .iter()
         .map(|f| f.0)
-        .zip(poses.iter().copied())
+        .zip(poses.iter().map(|p| transfer(p, &spoon, &robot)))
         .collect();
-    let dense = join_frames(&frames);
+    let dense = join_frames(&carried);
     let lever = tool.shape.bounding_radius();
     let points: Vec<[DVec3; 2]> = dense.iter().map(|p| pose_points(p, lever)).collect();
     let th = fit_theta(
-        sk,
+        &demonstrated_skill(sk, &robot, &spoon),
         &[sk.theta, [0.0; 5]],
         &start,
         scene.simulation.dt,
@@ -138,6 +197,8 @@ pub fn fit(
     Ok(DemoFit {
         poses,
         silhouette_loss: losses,
+        spoon,
+        rounds,
         theta: th.theta,
         path_loss: th.loss,
     })
@@ -152,10 +213,14 @@ pub struct Score {
     /// |Θ − Θ*| in the [−1, 1] units: mean over the components, and the largest.
     pub theta_mean: f64,
     pub theta_max: f64,
+    /// |fitted − true| / true per spoon dimension (bowl radius, bowl depth, handle length), %.
+    pub shape_pct: [f64; 3],
 }
 
-/// Scores a fit against the truth `demo make` wrote.
-pub fn score(fit: &DemoFit, truth: &super::make::Truth) -> Score {
+/// Scores a fit against the truth `demo make` wrote; `scene_spoon` is the demonstrator's when
+/// the truth names none.
+pub fn score(fit: &DemoFit, truth: &super::make::Truth, scene_spoon: &Spoon) -> Score {
+    let shape = truth.spoon.unwrap_or_else(|| dimensions(scene_spoon));
     let mut mm: Vec<f64> = Vec::new();
     let mut deg: Vec<f64> = Vec::new();
     for (p, (t, q)) in fit.poses.iter().zip(&truth.poses) {
@@ -184,5 +249,8 @@ pub fn score(fit: &DemoFit, truth: &super::make::Truth) -> Score {
         pose_deg: quantiles(&mut deg),
         theta_mean: errs.iter().sum::<f64>() / 5.0,
         theta_max: errs.iter().copied().fold(0.0, f64::max),
+        shape_pct: std::array::from_fn(|k| {
+            100.0 * (dimensions(&fit.spoon)[k] - shape[k]).abs() / shape[k]
+        }),
     }
 }

@@ -58,6 +58,8 @@ pub struct Demo {
     pub fps: f64,
     pub cameras: Vec<Camera>,
     pub frames: Vec<(usize, Vec<Vec<f64>>)>,
+    /// Each frame's image file from each camera, where it has one.
+    pub images: Vec<Vec<Option<PathBuf>>>,
 }
 
 /// Reads an 8-bit PNG as RGB (greyscale is repeated); `None` with the decoder's complaint.
@@ -151,6 +153,16 @@ pub fn load(dir: &Path) -> Result<Demo, String> {
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| format!("{}: {e}", json.display()))?;
     let mut frames = Vec::new();
+    let images = spec
+        .frames
+        .iter()
+        .map(|frame| {
+            cameras
+                .iter()
+                .map(|c| frame.images.get(&c.name).map(|i| dir.join(i)))
+                .collect()
+        })
+        .collect();
     for (f, frame) in spec.frames.iter().enumerate() {
         let mut views = Vec::new();
         for cam in &cameras {
@@ -203,5 +215,6 @@ pub fn load(dir: &Path) -> Result<Demo, String> {
         fps: spec.fps,
         cameras,
         frames,
+        images,
     })
 }

@@ -7,8 +7,11 @@
 //! the hand's pose in every frame) to score a fit against.
 
 use super::format::{DemoSpec, FrameSpec};
+use super::shape::dimensions;
 use super::skill_fit::trajectory;
+use super::spoon_map::{demonstrated_skill, transfer};
 use crate::math::pose::Pose;
+use crate::math::sdf::{Shape, Spoon};
 use crate::render::{self, Camera, View};
 use crate::rollout::skill_tool;
 use crate::scene::{ControlSpec, Scene};
@@ -39,12 +42,18 @@ pub struct MakeOptions {
     pub noise: f64,
     pub masks: bool,
     pub seed: u64,
+    /// The demonstrator's spoon, when it is not the scene's: the hand carries the skill's
+    /// motion over to it through the bowls' frames ([`spoon_map`](super::spoon_map)).
+    pub spoon: Option<Spoon>,
 }
 
 /// What `truth.json` holds.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Truth {
     pub theta: [f64; 5],
+    /// The demonstrator's spoon: bowl radius, bowl depth, handle length (m).
+    #[serde(default)]
+    pub spoon: Option<[f64; 3]>,
     /// The hand's pose in each frame: translation (m) and quaternion `[x, y, z, w]`.
     pub poses: Vec<([f64; 3], [f64; 4])>,
 }
@@ -110,18 +119,33 @@ pub fn make(
     };
     sk.validate()
         .map_err(|e| anyhow::anyhow!("--theta: {} = {} is not {}", e.field, e.value, e.expected))?;
+    // The robot's spoon and the hand's: the skill's path is the robot's, carried over.
+    let spoons = match (tool.shape.spoon(), opts.spoon) {
+        (_, None) => None,
+        (Some(robot), Some(hand)) => Some((robot, hand)),
+        (None, Some(_)) => anyhow::bail!(
+            "{}: colliders[{i}] ('{}') is a {}: a demonstrator's spoon replaces a spoon",
+            scene.path.display(),
+            tool.name,
+            tool.shape.name()
+        ),
+    };
+    let sk = match spoons {
+        Some((robot, hand)) => demonstrated_skill(&sk, &robot, &hand),
+        None => sk,
+    };
     let dt = scene.simulation.dt;
     let (controls, _) = sk.controls(dt, Scene::tool_bottom(tool));
-    let start = Scene::collider_pose(tool);
-    let lever = tool.shape.bounding_radius();
-    let hand = hand_motion(
-        &trajectory(&start, &controls),
-        opts.warp,
-        opts.tremor,
-        lever,
-        opts.seed,
-    );
+    let mut path = trajectory(&Scene::collider_pose(tool), &controls);
     let mut demo_scene = scene.clone();
+    if let Some((robot, hand)) = spoons {
+        path = path.iter().map(|p| transfer(p, &robot, &hand)).collect();
+        let c = &mut demo_scene.colliders[i];
+        c.shape = Shape::from_spoon(&hand);
+        c.position = path[0].translation.into();
+    }
+    let lever = demo_scene.colliders[i].shape.bounding_radius();
+    let hand = hand_motion(&path, opts.warp, opts.tremor, lever, opts.seed);
     demo_scene.colliders[i].control = Some(ControlSpec::Actions(displacements(&hand)));
     let mut sim = Simulation::new(&demo_scene, &SimOptions::default())?;
     let steps = hand.len() - 1;
@@ -130,6 +154,7 @@ pub fn make(
     let mut frames = Vec::new();
     let mut truth = Truth {
         theta: opts.theta,
+        spoon: spoons.map(|(_, hand)| dimensions(&hand)),
         poses: Vec::new(),
     };
     for k in 0..=steps {

@@ -17,6 +17,7 @@ use glam::DVec3;
 
 /// One view of a frame: a camera and the spoon's mask in it (row-major, 0 to 1, NaN where
 /// unknown: a pixel showing something that may hide the spoon, such as powder).
+#[derive(Clone, Copy)]
 pub struct View<'a> {
     pub camera: &'a Camera,
     pub mask: &'a [f64],
@@ -90,6 +91,60 @@ fn gauss_newton(
     (loss, jtj, jtr)
 }
 
+/// The τ schedule (pixels' footprint): from `start` halved down to `end`, `end` last.
+pub fn tau_levels((start, end): (f64, f64)) -> Vec<f64> {
+    let levels = (start / end).log2().ceil().max(0.0) as usize + 1;
+    (0..levels)
+        .map(|level| (start / 2f64.powi(level as i32)).max(end))
+        .collect()
+}
+
+/// Each view's τ (m) for `px` pixels' footprint at the spoon's distance.
+pub fn taus(views: &[View], pose: &Pose, px: f64) -> Vec<f64> {
+    views
+        .iter()
+        .map(|v| px * (pose.translation - v.camera.position).length() / v.camera.fx)
+        .collect()
+}
+
+/// A Levenberg–Marquardt step: `δ = −(A + λ·diag A)⁻¹ g`, solved through the damped matrix's
+/// eigen-decomposition (it is symmetric positive semi-definite; null directions take no step).
+pub fn damped_step<const N: usize>(mut a: Vec<Vec<f64>>, g: &[f64], lambda: f64) -> [f64; N] {
+    for (k, row) in a.iter_mut().enumerate() {
+        row[k] += lambda * row[k].max(1e-12);
+    }
+    let (values, vectors) = symmetric_eigen(&a);
+    let mut delta = [0.0; N];
+    for (lv, v) in values.iter().zip(&vectors) {
+        if *lv <= 0.0 {
+            continue;
+        }
+        let c: f64 = v.iter().zip(g).map(|(x, y)| x * y).sum::<f64>() / lv;
+        for k in 0..N {
+            delta[k] -= c * v[k];
+        }
+    }
+    delta
+}
+
+/// The silhouette loss `Σ (o − mask)²` of the spoon at `pose` over `views`, at τ of `px`
+/// pixels' footprint.
+pub fn silhouette_loss(views: &[View], spoon: &Spoon, pose: &Pose, px: f64) -> f64 {
+    views
+        .iter()
+        .zip(taus(views, pose, px))
+        .map(|(v, t)| {
+            silhouette(v.camera, spoon, pose, t)
+                .occupancy
+                .iter()
+                .zip(v.mask)
+                .filter(|(_, m)| !m.is_nan())
+                .map(|(o, m)| (o - m) * (o - m))
+                .sum::<f64>()
+        })
+        .sum()
+}
+
 /// The prior's term: `w·‖θ − θ_prior‖²` with the pose difference as a translation and a
 /// rotation vector (scaled by `scale`).
 fn prior_term(pose: &Pose, prior: &Pose, scale: f64) -> [f64; 6] {
@@ -111,16 +166,8 @@ pub fn fit_pose(
     let mut pose = start;
     let mut steps = 0;
     let mut loss = f64::INFINITY;
-    let levels = (opts.tau_px.0 / opts.tau_px.1).log2().ceil().max(0.0) as usize + 1;
-    for level in 0..levels {
-        let px = (opts.tau_px.0 / 2f64.powi(level as i32)).max(opts.tau_px.1);
-        let tau = |p: &Pose| -> Vec<f64> {
-            views
-                .iter()
-                .map(|v| px * (p.translation - v.camera.position).length() / v.camera.fx)
-                .collect()
-        };
-        let taus = tau(&pose);
+    for px in tau_levels(opts.tau_px) {
+        let taus = taus(views, &pose, px);
         let total = |p: &Pose, l: f64| -> f64 {
             let pr = prior.map_or(0.0, |q| {
                 prior_term(p, q, scale).iter().map(|x| x * x).sum::<f64>()
@@ -139,21 +186,7 @@ pub fn fit_pose(
                     g[k] += opts.prior_weight * d[k];
                 }
             }
-            for (k, row) in a.iter_mut().enumerate() {
-                row[k] += lambda * row[k].max(1e-12);
-            }
-            // δ = −A⁻¹g through A's eigen-decomposition (A is symmetric positive definite).
-            let (values, vectors) = symmetric_eigen(&a);
-            let mut delta = [0.0; 6];
-            for (lv, v) in values.iter().zip(&vectors) {
-                if *lv <= 0.0 {
-                    continue;
-                }
-                let c: f64 = v.iter().zip(&g).map(|(x, y)| x * y).sum::<f64>() / lv;
-                for k in 0..6 {
-                    delta[k] -= c * v[k];
-                }
-            }
+            let delta = damped_step::<6>(a, &g, lambda);
             let trial = perturbed(
                 &pose,
                 DVec3::new(delta[0], delta[1], delta[2]),

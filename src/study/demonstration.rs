@@ -1,11 +1,14 @@
 //! `powderlab study demonstration`: synthetic demonstrations of the default scene's skill at
-//! five Θ*, filmed from two cameras with pixel noise, tremor and a warped pace, and fitted
-//! back: pose error per frame and Θ error. Each Θ*'s result is kept in its folder, so a rerun
-//! after a kill resumes.
+//! five Θ*, each with a demonstrator's spoon of other dimensions, filmed from two cameras with
+//! pixel noise, tremor and a warped pace, and fitted back: pose error per frame, shape error
+//! and Θ error; and the first demonstration fitted again from its front camera alone. Each
+//! fit's result is kept in its folder, so a rerun after a kill resumes.
 
 use crate::demo::fit::{fit, score, FitOptions, Score};
 use crate::demo::format;
 use crate::demo::make::{make, MakeOptions, Truth};
+use crate::demo::shape::dimensions;
+use crate::render::silhouette::reshaped;
 use crate::render::{self, Camera};
 use crate::scene::Scene;
 use crate::sim::{SimOptions, Simulation};
@@ -21,11 +24,27 @@ pub const THETAS: [[f64; 5]; 5] = [
     [-0.3, -0.7, 0.3, 0.4, -0.7],
 ];
 
-/// One Θ*'s outcome.
+/// The demonstrators' spoons: the scene's bowl radius, bowl depth and handle length scaled by
+/// these (the third is the scene's own spoon).
+pub const SPOON_SCALES: [[f64; 3]; 5] = [
+    [1.1, 0.85, 1.15],
+    [0.9, 1.15, 0.9],
+    [1.0, 1.0, 1.0],
+    [1.15, 1.1, 0.85],
+    [0.85, 0.9, 1.1],
+];
+
+/// One fit's outcome.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Row {
     pub truth: [f64; 5],
     pub fitted: [f64; 5],
+    /// The demonstrator's spoon and the fitted one: bowl radius, bowl depth, handle length (m).
+    pub spoon_truth: [f64; 3],
+    pub spoon_fit: [f64; 3],
+    pub shape_pct: [f64; 3],
+    /// Views the fit used.
+    pub views: usize,
     pub pose_mm: [f64; 2],
     pub pose_deg: [f64; 2],
     pub theta_mean: f64,
@@ -41,13 +60,65 @@ pub struct Setup {
     pub noise: f64,
 }
 
-/// Runs (or resumes) the study of `scene` in `dir`.
+/// A fit's row, read back from `path` when an earlier run wrote it, else computed and written.
+fn fitted(path: &Path, demo: &format::Demo, scene: &Scene, truth: &Truth) -> anyhow::Result<Row> {
+    if let Ok(text) = std::fs::read_to_string(path) {
+        if let Ok(row) = serde_json::from_str::<Row>(&text) {
+            return Ok(row);
+        }
+    }
+    let robot = scene.colliders[crate::rollout::skill_tool(scene)?]
+        .shape
+        .spoon()
+        .ok_or_else(|| anyhow::anyhow!("the study's scene tracks a spoon"))?;
+    let t0 = std::time::Instant::now();
+    let f = fit(demo, scene, &FitOptions::default(), |_, _| {})?;
+    let s: Score = score(&f, truth, &robot);
+    let row = Row {
+        truth: truth.theta,
+        fitted: f.theta,
+        spoon_truth: truth.spoon.unwrap_or_else(|| dimensions(&robot)),
+        spoon_fit: dimensions(&f.spoon),
+        shape_pct: s.shape_pct,
+        views: demo.cameras.len(),
+        pose_mm: s.pose_mm,
+        pose_deg: s.pose_deg,
+        theta_mean: s.theta_mean,
+        theta_max: s.theta_max,
+        frames: demo.frames.len(),
+        fit_s: t0.elapsed().as_secs_f64(),
+    };
+    crate::util::write_atomic(path, serde_json::to_string_pretty(&row)?.as_bytes())?;
+    Ok(row)
+}
+
+/// The demonstration as its first `n` cameras alone filmed it.
+fn first_views(demo: &format::Demo, n: usize) -> format::Demo {
+    format::Demo {
+        dir: demo.dir.clone(),
+        fps: demo.fps,
+        cameras: demo.cameras[..n].to_vec(),
+        frames: demo
+            .frames
+            .iter()
+            .map(|(k, m)| (*k, m[..n].to_vec()))
+            .collect(),
+        images: demo.images.iter().map(|i| i[..n].to_vec()).collect(),
+    }
+}
+
+/// Runs (or resumes) the study of `scene` in `dir`: a row per Θ* (two views), then Θ*₀'s
+/// demonstration from one view.
 pub fn run(
     scene: &Scene,
     dir: &Path,
     setup: &Setup,
     progress: &dyn Fn(usize),
 ) -> anyhow::Result<Vec<Row>> {
+    let robot = scene.colliders[crate::rollout::skill_tool(scene)?]
+        .shape
+        .spoon()
+        .ok_or_else(|| anyhow::anyhow!("the study's scene tracks a spoon"))?;
     let mut sim = Simulation::new(scene, &SimOptions::default())?;
     let (lo, hi) = render::scene_box(&mut sim);
     let cameras = vec![
@@ -57,42 +128,43 @@ pub fn run(
     let mut rows = Vec::new();
     for (k, theta) in THETAS.iter().enumerate() {
         let d = dir.join(format!("theta{k}"));
-        let done = d.join("result.json");
-        if let Ok(text) = std::fs::read_to_string(&done) {
-            if let Ok(row) = serde_json::from_str::<Row>(&text) {
-                rows.push(row);
-                progress(k + 1);
-                continue;
+        let truth_path = d.join("truth.json");
+        let made = std::fs::read_to_string(&truth_path)
+            .ok()
+            .and_then(|t| serde_json::from_str::<Truth>(&t).ok());
+        let truth = match made {
+            Some(t) => t,
+            None => {
+                crate::util::create_output_dir(&d, "--out")?;
+                let sc = SPOON_SCALES[k];
+                let spoon = reshaped(
+                    &robot,
+                    std::array::from_fn(|j| (sc[j] - 1.0) * dimensions(&robot)[j]),
+                );
+                let opts = MakeOptions {
+                    theta: *theta,
+                    cameras: cameras.clone(),
+                    every: setup.every,
+                    tremor: 0.0003,
+                    warp: 0.3,
+                    noise: setup.noise,
+                    masks: true,
+                    seed: 1 + k as u64,
+                    spoon: Some(spoon),
+                };
+                make(scene, &opts, &d, |_, _| {})?
             }
-        }
-        crate::util::create_output_dir(&d, "--out")?;
-        let opts = MakeOptions {
-            theta: *theta,
-            cameras: cameras.clone(),
-            every: setup.every,
-            tremor: 0.0003,
-            warp: 0.3,
-            noise: setup.noise,
-            masks: true,
-            seed: 1 + k as u64,
         };
-        let truth: Truth = make(scene, &opts, &d, |_, _| {})?;
         let demo = format::load(&d).map_err(anyhow::Error::msg)?;
-        let t0 = std::time::Instant::now();
-        let f = fit(&demo, scene, &FitOptions::default(), |_, _| {})?;
-        let s: Score = score(&f, &truth);
-        let row = Row {
-            truth: *theta,
-            fitted: f.theta,
-            pose_mm: s.pose_mm,
-            pose_deg: s.pose_deg,
-            theta_mean: s.theta_mean,
-            theta_max: s.theta_max,
-            frames: demo.frames.len(),
-            fit_s: t0.elapsed().as_secs_f64(),
-        };
-        crate::util::write_atomic(&done, serde_json::to_string_pretty(&row)?.as_bytes())?;
-        rows.push(row);
+        rows.push(fitted(&d.join("result.json"), &demo, scene, &truth)?);
+        if k == 0 {
+            rows.push(fitted(
+                &d.join("result_one_view.json"),
+                &first_views(&demo, 1),
+                scene,
+                &truth,
+            )?);
+        }
         progress(k + 1);
     }
     Ok(rows)
@@ -102,8 +174,8 @@ pub fn run(
 pub fn report(rows: &[Row], scene: &str, setup: &Setup, command: &str, machine: &str) -> String {
     let mut md = format!(
         "# Learning the skill from a demonstration\n\nRegenerate with `{command}` ({machine}).\n\n\
-         Synthetic demonstrations of `{scene}`'s skill at five Θ*: a hand follows the skill's path with its own pace (warp 0.3) and a 0.3 mm tremor, the powder moves under its spoon, and two cameras (front and side, {}×{} pixels) film a frame every {} steps with Gaussian pixel noise σ = {}. The masks mark the spoon, and powder as unknown (it may hide the spoon). `demo fit` tracks the spoon's pose in every frame and fits Θ to the tracked path. The spoon's shape is the scene's (not fitted).\n\n\
-         | Θ* | Θ_demo | Θ error, mean | largest | pose error median | 95th percentile | frames | fit (s) |\n|---|---|---|---|---|---|---|---|\n",
+         Synthetic demonstrations of `{scene}`'s skill at five Θ*. A hand follows the skill's path with its own pace (warp 0.3) and a 0.3 mm tremor, holding a spoon of its own (the scene's bowl radius, bowl depth and handle length scaled by 0.85–1.15; the third is the scene's spoon), carried over through the bowls' frames with the scoop depth scaled by the bowl depth. The powder moves under its spoon, and two cameras (front and side, {}×{} pixels) film a frame every {} steps with Gaussian pixel noise σ = {}. The masks mark the spoon, and powder as unknown (it may hide the spoon). `demo fit` tracks the spoon's pose in every frame, fits its shape to all frames and tracks again until the silhouette loss stops falling, carries the path over to the scene's spoon and fits Θ to it.\n\n\
+         | Θ* | Θ_demo | Θ error, mean | largest | pose error median | 95th percentile | shape error (bowl radius, depth, handle) | frames | fit (s) |\n|---|---|---|---|---|---|---|---|---|\n",
         setup.size.0, setup.size.1, setup.every, setup.noise
     );
     let f = |t: &[f64; 5]| {
@@ -112,9 +184,10 @@ pub fn report(rows: &[Row], scene: &str, setup: &Setup, command: &str, machine: 
             .collect::<Vec<_>>()
             .join(", ")
     };
-    for r in rows {
+    let two: Vec<&Row> = rows.iter().filter(|r| r.views == 2).collect();
+    for r in &two {
         md += &format!(
-            "| {} | {} | {:.4} | {:.4} | {:.2} mm, {:.2}° | {:.2} mm, {:.2}° | {} | {:.0} |\n",
+            "| {} | {} | {:.4} | {:.4} | {:.2} mm, {:.2}° | {:.2} mm, {:.2}° | {:.1} %, {:.1} %, {:.1} % | {} | {:.0} |\n",
             f(&r.truth),
             f(&r.fitted),
             r.theta_mean,
@@ -123,16 +196,38 @@ pub fn report(rows: &[Row], scene: &str, setup: &Setup, command: &str, machine: 
             r.pose_deg[0],
             r.pose_mm[1],
             r.pose_deg[1],
+            r.shape_pct[0],
+            r.shape_pct[1],
+            r.shape_pct[2],
             r.frames,
             r.fit_s
         );
     }
-    let n = rows.len().max(1) as f64;
-    let mean = rows.iter().map(|r| r.theta_mean).sum::<f64>() / n;
-    let worst = rows.iter().map(|r| r.theta_max).fold(0.0, f64::max);
+    let n = two.len().max(1) as f64;
+    let mean = two.iter().map(|r| r.theta_mean).sum::<f64>() / n;
+    let worst = two.iter().map(|r| r.theta_max).fold(0.0, f64::max);
+    let shape = two.iter().flat_map(|r| r.shape_pct).sum::<f64>() / (3.0 * n);
     md += &format!(
-        "\nOver the five: Θ error {mean:.4} on average per component (the target is at most 0.05: {}), {worst:.4} at worst.\n",
+        "\nOver the five: Θ error {mean:.4} on average per component (the target is at most 0.05: {}), {worst:.4} at worst; shape error {shape:.1} % on average.\n",
         if mean <= 0.05 { "met" } else { "missed" }
     );
+    md += "\n## One view against two\n\nThe first demonstration fitted from its front camera alone, and from both.\n\n\
+           | views | pose error median | 95th percentile | shape error (bowl radius, depth, handle) | Θ error, mean | fit (s) |\n|---|---|---|---|---|---|\n";
+    let first = rows.first().map(|r| r.truth);
+    for r in rows.iter().filter(|r| Some(r.truth) == first) {
+        md += &format!(
+            "| {} | {:.2} mm, {:.2}° | {:.2} mm, {:.2}° | {:.1} %, {:.1} %, {:.1} % | {:.4} | {:.0} |\n",
+            r.views,
+            r.pose_mm[0],
+            r.pose_deg[0],
+            r.pose_mm[1],
+            r.pose_deg[1],
+            r.shape_pct[0],
+            r.shape_pct[1],
+            r.shape_pct[2],
+            r.theta_mean,
+            r.fit_s
+        );
+    }
     md
 }

@@ -109,6 +109,18 @@ impl Shape {
         }
     }
 
+    /// The spoon shape of these dimensions.
+    pub fn from_spoon(s: &Spoon) -> Shape {
+        Shape::Spoon {
+            bowl_radius: s.bowl_radius,
+            bowl_depth: s.bowl_depth,
+            thickness: s.thickness,
+            handle_length: s.handle_length,
+            handle_radius: s.handle_radius,
+            handle_rise: s.handle_rise,
+        }
+    }
+
     /// The cup's dimensions, if it is one.
     #[inline(always)]
     fn cup(&self) -> Option<Cup> {
