@@ -452,7 +452,8 @@ fn refine_cmd(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// `powderlab study demonstration`: five synthetic demonstrations filmed and fitted back.
+/// `powderlab study demonstration`: five synthetic demonstrations filmed and fitted back, and
+/// an expert's demonstration as the warm start of an optimisation.
 fn demonstration_cmd(a: Args) -> Result<()> {
     use powderlab::study::demonstration::{self, Setup};
     let scene_path = "scenes/powder_transport.ron";
@@ -469,6 +470,13 @@ fn demonstration_cmd(a: Args) -> Result<()> {
         pb2.set_position(k as u64)
     })?;
     pb.finish_and_clear();
+    if !a.json {
+        eprintln!(
+            "the warm start: an expert's demonstration, then CMA-ES from it and from random starts"
+        );
+    }
+    let warm =
+        powderlab::study::warm_start::run(&scene, &a.out.join("demonstration/warm_start"), &setup)?;
     let machine = powderlab::study::optimizers::machine();
     let md = demonstration::report(
         &rows,
@@ -476,7 +484,7 @@ fn demonstration_cmd(a: Args) -> Result<()> {
         &setup,
         "powderlab study demonstration",
         &machine,
-    );
+    ) + &powderlab::study::warm_start::report(&warm);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("demonstration.md"), md.as_bytes())?;
     print_page(

@@ -5,14 +5,12 @@
 //!    matches the masks better, and pulled towards the prediction by a smoothness prior;
 //! 2. the spoon's shape fitted to all frames jointly with their poses
 //!    ([`shape`](super::shape); seed B alternates the two, which stalled here);
-//! 3. the tracked path carried over to the robot's spoon through the bowls' frames
-//!    ([`spoon_map`](super::spoon_map)), resampled at every global step between the frames
-//!    (so both sequences the path loss aligns are equally dense), and Θ fitted to it
-//!    ([`skill_fit`](super::skill_fit)).
+//! 3. the tracked frames carried over to the robot's spoon through the bowls' frames
+//!    ([`spoon_map`](super::spoon_map)), and Θ fitted to them ([`skill_fit`](super::skill_fit)).
 
 use super::format::Demo;
 use super::shape::{dimensions, refine};
-use super::skill_fit::{fit_theta, join_frames, pose_points};
+use super::skill_fit::{fit_theta, pose_points, ThetaFit};
 use super::spoon_map::{demonstrated_skill, transfer};
 use super::track::{fit_pose, silhouette_loss, TrackOptions, View};
 use crate::math::pose::Pose;
@@ -30,6 +28,11 @@ pub struct FitOptions {
     pub smoothness: f64,
     /// Fit the demonstrator's spoon with the poses; false keeps the scene's spoon.
     pub fit_shape: bool,
+    /// τ of the joint fit of the shape and the poses (pixels' footprint, from and to): it
+    /// starts where the tracking's first τ level has already pulled each pose in.
+    pub refine_tau_px: (f64, f64),
+    /// Levenberg–Marquardt steps of the joint fit at each τ.
+    pub refine_iterations: usize,
     /// Adam steps of the Θ fit from each start.
     pub theta_iterations: usize,
 }
@@ -37,9 +40,16 @@ pub struct FitOptions {
 impl Default for FitOptions {
     fn default() -> Self {
         FitOptions {
-            track: TrackOptions::default(),
+            // The joint fit polishes every pose afterwards, so tracking stops sooner than
+            // the tracker's default.
+            track: TrackOptions {
+                iterations: 12,
+                ..TrackOptions::default()
+            },
             smoothness: 0.01,
             fit_shape: true,
+            refine_tau_px: (0.5, 0.25),
+            refine_iterations: 25,
             theta_iterations: 1500,
         }
     }
@@ -125,14 +135,17 @@ fn track_all(
     (poses, losses)
 }
 
-/// Tracks and fits; `progress` is called after each tracked frame with the frames done and
-/// the most there may be (every shape round tracks them all again).
-pub fn fit(
-    demo: &Demo,
-    scene: &Scene,
-    opts: &FitOptions,
-    mut progress: impl FnMut(usize, usize),
-) -> anyhow::Result<DemoFit> {
+/// What the tracking gives (steps 1–2).
+#[derive(Clone, Debug)]
+pub struct Tracked {
+    pub poses: Vec<Pose>,
+    pub silhouette_loss: Vec<f64>,
+    pub spoon: Spoon,
+    pub rounds: Vec<f64>,
+}
+
+/// The scene's skill spoon and its skill.
+fn robot(scene: &Scene) -> anyhow::Result<(usize, Spoon, &crate::skills::SkillSpec)> {
     let i = skill_tool(scene)?;
     let tool = &scene.colliders[i];
     let Some(robot) = tool.shape.spoon() else {
@@ -146,7 +159,19 @@ pub fn fit(
     let Some(ControlSpec::Skill(sk)) = &tool.control else {
         unreachable!("skill_tool found a Skill control")
     };
-    let start = Scene::collider_pose(tool);
+    Ok((i, robot, sk))
+}
+
+/// Tracks the spoon and fits its shape (steps 1–2); `progress` is called after each tracked
+/// frame with the frames done and their number.
+pub fn track(
+    demo: &Demo,
+    scene: &Scene,
+    opts: &FitOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> anyhow::Result<Tracked> {
+    let (i, robot, _) = robot(scene)?;
+    let start = Scene::collider_pose(&scene.colliders[i]);
     let track_opts = TrackOptions {
         prior_weight: 1.0 / (opts.smoothness * opts.smoothness),
         ..opts.track.clone()
@@ -165,40 +190,74 @@ pub fn fit(
             &frames,
             robot,
             &poses,
-            opts.track.tau_px,
-            opts.track.iterations,
+            opts.refine_tau_px,
+            opts.refine_iterations,
         );
         rounds.push(r.losses.iter().sum());
         (r.spoon, r.poses, r.losses)
     } else {
         (robot, poses, losses)
     };
-    // The tracked path, carried over to the robot's spoon, at every global step between the
-    // frames.
-    let carried: Vec<(usize, Pose)> = demo
-        .frames
-        .iter()
-        .map(|f| f.0)
-        .zip(poses.iter().map(|p| transfer(p, &spoon, &robot)))
-        .collect();
-    let dense = join_frames(&carried);
+    Ok(Tracked {
+        poses,
+        silhouette_loss: losses,
+        spoon,
+        rounds,
+    })
+}
+
+/// Fits Θ to a track (step 3): the path carried over to the scene's spoon, frame `k` at global
+/// step `steps[k]`.
+pub fn fit_skill(
+    steps: &[usize],
+    tracked: &Tracked,
+    scene: &Scene,
+    opts: &FitOptions,
+) -> anyhow::Result<ThetaFit> {
+    let (i, robot, sk) = robot(scene)?;
+    let tool = &scene.colliders[i];
+    // The tracked frames, carried over to the robot's spoon (the path loss aligns them in
+    // order and ignores their timing, so `steps` only checks the count).
+    anyhow::ensure!(
+        steps.len() == tracked.poses.len(),
+        "{} frames but {} tracked poses",
+        steps.len(),
+        tracked.poses.len()
+    );
     let lever = tool.shape.bounding_radius();
-    let points: Vec<[DVec3; 2]> = dense.iter().map(|p| pose_points(p, lever)).collect();
-    let th = fit_theta(
-        &demonstrated_skill(sk, &robot, &spoon),
+    let points: Vec<[DVec3; 2]> = tracked
+        .poses
+        .iter()
+        .map(|p| pose_points(&transfer(p, &tracked.spoon, &robot), lever))
+        .collect();
+    Ok(fit_theta(
+        &demonstrated_skill(sk, &robot, &tracked.spoon),
         &[sk.theta, [0.0; 5]],
-        &start,
+        &Scene::collider_pose(tool),
         scene.simulation.dt,
         Scene::tool_bottom(tool),
         lever,
         &points,
         opts.theta_iterations,
-    );
+    ))
+}
+
+/// Tracks and fits; `progress` is called after each tracked frame with the frames done and
+/// their number.
+pub fn fit(
+    demo: &Demo,
+    scene: &Scene,
+    opts: &FitOptions,
+    progress: impl FnMut(usize, usize),
+) -> anyhow::Result<DemoFit> {
+    let t = track(demo, scene, opts, progress)?;
+    let steps: Vec<usize> = demo.frames.iter().map(|f| f.0).collect();
+    let th = fit_skill(&steps, &t, scene, opts)?;
     Ok(DemoFit {
-        poses,
-        silhouette_loss: losses,
-        spoon,
-        rounds,
+        poses: t.poses,
+        silhouette_loss: t.silhouette_loss,
+        spoon: t.spoon,
+        rounds: t.rounds,
         theta: th.theta,
         path_loss: th.loss,
     })

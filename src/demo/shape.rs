@@ -69,19 +69,19 @@ fn terms(views: &[View], spoon: &Spoon, pose: &Pose, px: f64, scale: f64) -> Ter
                 let jp: [f64; 6] =
                     std::array::from_fn(|k| f * dm[k] * if k >= 3 { 1.0 / scale } else { 1.0 });
                 let js = [f * dm[6], f * dm[7], f * dm[8]];
-                for i in 0..6 {
-                    t.gp[i] += jp[i] * r;
-                    for j in 0..6 {
-                        t.a[i][j] += jp[i] * jp[j];
+                for (i, pi) in jp.iter().enumerate() {
+                    t.gp[i] += pi * r;
+                    for (a, pj) in t.a[i].iter_mut().zip(&jp) {
+                        *a += pi * pj;
                     }
-                    for j in 0..3 {
-                        t.b[i][j] += jp[i] * js[j];
+                    for (b, sj) in t.b[i].iter_mut().zip(&js) {
+                        *b += pi * sj;
                     }
                 }
-                for i in 0..3 {
-                    t.gs[i] += js[i] * r;
-                    for j in 0..3 {
-                        t.c[i][j] += js[i] * js[j];
+                for (i, si) in js.iter().enumerate() {
+                    t.gs[i] += si * r;
+                    for (c, sj) in t.c[i].iter_mut().zip(&js) {
+                        *c += si * sj;
                     }
                 }
             }
@@ -111,8 +111,8 @@ fn pinv(a: &[Vec<f64>]) -> Vec<Vec<f64>> {
 /// The damped step of every pose and of the shape, by the Schur complement.
 fn joint_step(t: &[Terms], lambda: f64) -> (Vec<[f64; 6]>, [f64; 3]) {
     let damp = |m: &mut Vec<Vec<f64>>| {
-        for k in 0..m.len() {
-            m[k][k] += lambda * m[k][k].max(1e-12);
+        for (k, row) in m.iter_mut().enumerate() {
+            row[k] += lambda * row[k].max(1e-12);
         }
     };
     let mut s: Vec<Vec<f64>> = vec![vec![0.0; 3]; 3];

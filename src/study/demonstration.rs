@@ -2,12 +2,14 @@
 //! five Θ*, each with a demonstrator's spoon of other dimensions, filmed from two cameras with
 //! pixel noise, tremor and a warped pace, and fitted back: pose error per frame, shape error
 //! and Θ error; and the first demonstration fitted again from its front camera alone. Each
-//! fit's result is kept in its folder, so a rerun after a kill resumes.
+//! demonstration and its track are kept in its folder, so a rerun after a kill resumes, and a
+//! rerun fits Θ to the kept tracks again (seconds) without tracking again.
 
-use crate::demo::fit::{fit, score, FitOptions, Score};
+use crate::demo::fit::{fit_skill, score, track, DemoFit, FitOptions, Score, Tracked};
 use crate::demo::format;
 use crate::demo::make::{make, MakeOptions, Truth};
 use crate::demo::shape::dimensions;
+use crate::math::pose::Pose;
 use crate::render::silhouette::reshaped;
 use crate::render::{self, Camera};
 use crate::scene::Scene;
@@ -60,21 +62,80 @@ pub struct Setup {
     pub noise: f64,
 }
 
-/// A fit's row, read back from `path` when an earlier run wrote it, else computed and written.
-fn fitted(path: &Path, demo: &format::Demo, scene: &Scene, truth: &Truth) -> anyhow::Result<Row> {
-    if let Ok(text) = std::fs::read_to_string(path) {
-        if let Ok(row) = serde_json::from_str::<Row>(&text) {
-            return Ok(row);
+/// What a tracking leaves in its folder, so that a rerun fits Θ again without tracking again.
+#[derive(Serialize, Deserialize)]
+struct TrackFile {
+    poses: Vec<([f64; 3], [f64; 4])>,
+    silhouette_loss: Vec<f64>,
+    spoon: [f64; 3],
+    rounds: Vec<f64>,
+    track_s: f64,
+}
+
+/// A fit's row: the track read back from `path` when an earlier run wrote it (else tracked
+/// and written there), and Θ fitted to it.
+pub(crate) fn fitted(
+    path: &Path,
+    demo: &format::Demo,
+    scene: &Scene,
+    truth: &Truth,
+) -> anyhow::Result<Row> {
+    let robot = robot_spoon(scene)?;
+    let opts = FitOptions::default();
+    let kept = std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<TrackFile>(&t).ok())
+        .filter(|t| t.poses.len() == demo.frames.len());
+    let (tracked, track_s) = match kept {
+        Some(t) => {
+            let d = dimensions(&robot);
+            let tracked = Tracked {
+                poses: t
+                    .poses
+                    .iter()
+                    .map(|(x, q)| Pose {
+                        translation: glam::DVec3::from_array(*x),
+                        rotation: glam::DQuat::from_array(*q),
+                    })
+                    .collect(),
+                silhouette_loss: t.silhouette_loss,
+                spoon: reshaped(&robot, std::array::from_fn(|k| t.spoon[k] - d[k])),
+                rounds: t.rounds,
+            };
+            (tracked, t.track_s)
         }
-    }
-    let robot = scene.colliders[crate::rollout::skill_tool(scene)?]
-        .shape
-        .spoon()
-        .ok_or_else(|| anyhow::anyhow!("the study's scene tracks a spoon"))?;
+        None => {
+            let t0 = std::time::Instant::now();
+            let tracked = track(demo, scene, &opts, |_, _| {})?;
+            let track_s = t0.elapsed().as_secs_f64();
+            let file = TrackFile {
+                poses: tracked
+                    .poses
+                    .iter()
+                    .map(|p| (p.translation.to_array(), p.rotation.to_array()))
+                    .collect(),
+                silhouette_loss: tracked.silhouette_loss.clone(),
+                spoon: dimensions(&tracked.spoon),
+                rounds: tracked.rounds.clone(),
+                track_s,
+            };
+            crate::util::write_atomic(path, serde_json::to_string(&file)?.as_bytes())?;
+            (tracked, track_s)
+        }
+    };
     let t0 = std::time::Instant::now();
-    let f = fit(demo, scene, &FitOptions::default(), |_, _| {})?;
+    let steps: Vec<usize> = demo.frames.iter().map(|f| f.0).collect();
+    let th = fit_skill(&steps, &tracked, scene, &opts)?;
+    let f = DemoFit {
+        poses: tracked.poses,
+        silhouette_loss: tracked.silhouette_loss,
+        spoon: tracked.spoon,
+        rounds: tracked.rounds,
+        theta: th.theta,
+        path_loss: th.loss,
+    };
     let s: Score = score(&f, truth, &robot);
-    let row = Row {
+    Ok(Row {
         truth: truth.theta,
         fitted: f.theta,
         spoon_truth: truth.spoon.unwrap_or_else(|| dimensions(&robot)),
@@ -86,10 +147,8 @@ fn fitted(path: &Path, demo: &format::Demo, scene: &Scene, truth: &Truth) -> any
         theta_mean: s.theta_mean,
         theta_max: s.theta_max,
         frames: demo.frames.len(),
-        fit_s: t0.elapsed().as_secs_f64(),
-    };
-    crate::util::write_atomic(path, serde_json::to_string_pretty(&row)?.as_bytes())?;
-    Ok(row)
+        fit_s: track_s + t0.elapsed().as_secs_f64(),
+    })
 }
 
 /// The demonstration as its first `n` cameras alone filmed it.
@@ -107,6 +166,65 @@ fn first_views(demo: &format::Demo, n: usize) -> format::Demo {
     }
 }
 
+/// The study's two cameras, framing `scene` from the front and the side.
+pub fn cameras(scene: &Scene, setup: &Setup) -> anyhow::Result<Vec<Camera>> {
+    let mut sim = Simulation::new(scene, &SimOptions::default())?;
+    let (lo, hi) = render::scene_box(&mut sim);
+    Ok(vec![
+        Camera::framing_at("front", lo, hi, setup.size.0, setup.size.1, 20.0),
+        Camera::framing_at("side", lo, hi, setup.size.0, setup.size.1, 100.0),
+    ])
+}
+
+/// The robot's spoon: the scene's skill tool.
+fn robot_spoon(scene: &Scene) -> anyhow::Result<crate::math::sdf::Spoon> {
+    scene.colliders[crate::rollout::skill_tool(scene)?]
+        .shape
+        .spoon()
+        .ok_or_else(|| anyhow::anyhow!("the study's scene tracks a spoon"))
+}
+
+/// A demonstration of `theta` in `d` with the robot's spoon scaled by `scale` and filming
+/// seed `seed`: read back when an earlier run made it (its truth.json is written last), else
+/// made. Returns it and its truth.
+pub(crate) fn demonstrated(
+    scene: &Scene,
+    d: &Path,
+    theta: [f64; 5],
+    scale: [f64; 3],
+    seed: u64,
+    cameras: &[Camera],
+    setup: &Setup,
+) -> anyhow::Result<(format::Demo, Truth)> {
+    let made = std::fs::read_to_string(d.join("truth.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<Truth>(&t).ok());
+    let truth = match made {
+        Some(t) => t,
+        None => {
+            crate::util::create_output_dir(d, "--out")?;
+            let robot = robot_spoon(scene)?;
+            let spoon = reshaped(
+                &robot,
+                std::array::from_fn(|j| (scale[j] - 1.0) * dimensions(&robot)[j]),
+            );
+            let opts = MakeOptions {
+                theta,
+                cameras: cameras.to_vec(),
+                every: setup.every,
+                tremor: 0.0003,
+                warp: 0.3,
+                noise: setup.noise,
+                masks: true,
+                seed,
+                spoon: Some(spoon),
+            };
+            make(scene, &opts, d, |_, _| {})?
+        }
+    };
+    Ok((format::load(d).map_err(anyhow::Error::msg)?, truth))
+}
+
 /// Runs (or resumes) the study of `scene` in `dir`: a row per Θ* (two views), then Θ*₀'s
 /// demonstration from one view.
 pub fn run(
@@ -115,51 +233,23 @@ pub fn run(
     setup: &Setup,
     progress: &dyn Fn(usize),
 ) -> anyhow::Result<Vec<Row>> {
-    let robot = scene.colliders[crate::rollout::skill_tool(scene)?]
-        .shape
-        .spoon()
-        .ok_or_else(|| anyhow::anyhow!("the study's scene tracks a spoon"))?;
-    let mut sim = Simulation::new(scene, &SimOptions::default())?;
-    let (lo, hi) = render::scene_box(&mut sim);
-    let cameras = vec![
-        Camera::framing_at("front", lo, hi, setup.size.0, setup.size.1, 20.0),
-        Camera::framing_at("side", lo, hi, setup.size.0, setup.size.1, 100.0),
-    ];
+    let cameras = cameras(scene, setup)?;
     let mut rows = Vec::new();
     for (k, theta) in THETAS.iter().enumerate() {
         let d = dir.join(format!("theta{k}"));
-        let truth_path = d.join("truth.json");
-        let made = std::fs::read_to_string(&truth_path)
-            .ok()
-            .and_then(|t| serde_json::from_str::<Truth>(&t).ok());
-        let truth = match made {
-            Some(t) => t,
-            None => {
-                crate::util::create_output_dir(&d, "--out")?;
-                let sc = SPOON_SCALES[k];
-                let spoon = reshaped(
-                    &robot,
-                    std::array::from_fn(|j| (sc[j] - 1.0) * dimensions(&robot)[j]),
-                );
-                let opts = MakeOptions {
-                    theta: *theta,
-                    cameras: cameras.clone(),
-                    every: setup.every,
-                    tremor: 0.0003,
-                    warp: 0.3,
-                    noise: setup.noise,
-                    masks: true,
-                    seed: 1 + k as u64,
-                    spoon: Some(spoon),
-                };
-                make(scene, &opts, &d, |_, _| {})?
-            }
-        };
-        let demo = format::load(&d).map_err(anyhow::Error::msg)?;
-        rows.push(fitted(&d.join("result.json"), &demo, scene, &truth)?);
+        let (demo, truth) = demonstrated(
+            scene,
+            &d,
+            *theta,
+            SPOON_SCALES[k],
+            1 + k as u64,
+            &cameras,
+            setup,
+        )?;
+        rows.push(fitted(&d.join("track.json"), &demo, scene, &truth)?);
         if k == 0 {
             rows.push(fitted(
-                &d.join("result_one_view.json"),
+                &d.join("track_one_view.json"),
                 &first_views(&demo, 1),
                 scene,
                 &truth,

@@ -28,6 +28,7 @@ pub mod landscape;
 pub mod optimizers;
 pub mod plot;
 pub mod refine;
+pub mod warm_start;
 
 pub use analysis::*;
 
