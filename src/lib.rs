@@ -52,6 +52,8 @@ pub mod metrics;
 pub mod nonfinite;
 #[cfg(feature = "lab")]
 pub mod optim;
+#[cfg(feature = "lab")]
+pub mod plan;
 pub mod plugin;
 pub mod ply;
 #[cfg(feature = "rerun")]
