@@ -181,7 +181,7 @@ pub fn report(w: &WarmStart) -> String {
     let u = &w.unit;
     let mut md = format!(
         "\n## The demonstration as a warm start\n\n\
-         An expert's skill (the best of {EXPERT_POINTS} Sobol points by dose error: Θ = {}, {:.3} {u} off) is demonstrated with a spoon of its own and fitted back: Θ_demo = {}, {:.3} {u} off. CMA-ES then runs {SEEDS} paired seeds of {BUDGET} rollouts from Θ_demo (`optimize --init fit.json --method cmaes`) and from each seed's random Θ_init.\n\n\
+         An expert's skill (the best of {EXPERT_POINTS} Sobol points by dose error: Θ = ({}), {:.3} {u} off) is demonstrated with a spoon of its own and fitted back: Θ_demo = ({}), {:.3} {u} off. CMA-ES then runs {SEEDS} paired seeds of {BUDGET} rollouts from Θ_demo (`optimize --init fit.json --method cmaes`) and from each seed's random Θ_init.\n\n\
          | start | dose error after {BUDGET} rollouts ({u}), mean ± std | seeds where it is lower |\n|---|---|---|\n\
          | Θ_demo | {dm:.3} ± {ds:.3} | {wins} of {SEEDS} |\n\
          | random Θ_init | {rm:.3} ± {rs:.3} | {} of {SEEDS} |\n\n",
