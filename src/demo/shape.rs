@@ -222,28 +222,10 @@ pub fn refine(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::demo::track::tests::{camera, mask_of};
     use crate::math::pose::quat_from_rotation_vector;
-    use crate::render::camera::CameraSpec;
     use crate::render::silhouette::tests::spoon;
-    use crate::render::Camera;
     use glam::DVec3;
-
-    fn camera(position: [f64; 3]) -> Camera {
-        Camera::from_spec(&CameraSpec {
-            name: "cam".into(),
-            width: 64,
-            height: 48,
-            fx: 70.0,
-            fy: 70.0,
-            cx: None,
-            cy: None,
-            position,
-            look_at: Some([0.0, 0.02, 0.0]),
-            up: None,
-            rotation: None,
-        })
-        .unwrap()
-    }
 
     /// Recovering a spoon 10–15 % off in each dimension (1.5, 1 and 4 mm), and three poses, two
     /// views each, the masks thresholded at a fifth of a pixel's τ. What a silhouette shows
@@ -254,7 +236,10 @@ mod tests {
     #[test]
     fn recovers_a_known_shape_and_its_poses() {
         let truth = reshaped(&spoon(), [0.0015, -0.001, 0.004]);
-        let cams = [camera([0.06, 0.1, 0.14]), camera([0.16, 0.07, -0.02])];
+        let cams = [
+            camera("front", [0.06, 0.1, 0.14]),
+            camera("side", [0.16, 0.07, -0.02]),
+        ];
         let poses: Vec<Pose> = [
             (DVec3::new(0.004, 0.01, -0.003), DVec3::new(0.2, -1.3, 0.15)),
             (DVec3::new(-0.002, 0.015, 0.002), DVec3::new(-0.4, 0.3, 0.5)),
@@ -268,18 +253,7 @@ mod tests {
         .collect();
         let masks: Vec<Vec<Vec<f64>>> = poses
             .iter()
-            .map(|p| {
-                cams.iter()
-                    .map(|c| {
-                        let tau = 0.2 * (p.translation - c.position).length() / c.fx;
-                        silhouette(c, &truth, p, tau)
-                            .occupancy
-                            .iter()
-                            .map(|&o| if o > 0.5 { 1.0 } else { 0.0 })
-                            .collect()
-                    })
-                    .collect()
-            })
+            .map(|p| cams.iter().map(|c| mask_of(c, &truth, p)).collect())
             .collect();
         let frames: Vec<Vec<View>> = masks
             .iter()

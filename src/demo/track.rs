@@ -215,13 +215,14 @@ pub fn fit_pose(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::math::pose::quat_from_rotation_vector;
     use crate::render::camera::CameraSpec;
     use crate::render::silhouette::tests::spoon;
 
-    fn camera(name: &str, position: [f64; 3]) -> Camera {
+    /// A 64×48 test camera at `position`, looking at the spoon's neighbourhood.
+    pub(crate) fn camera(name: &str, position: [f64; 3]) -> Camera {
         Camera::from_spec(&CameraSpec {
             name: name.into(),
             width: 64,
@@ -238,14 +239,19 @@ mod tests {
         .unwrap()
     }
 
-    /// A mask as a segmenter gives it: the silhouette at a fifth of a pixel's τ, thresholded.
-    fn mask(cam: &Camera, pose: &Pose) -> Vec<f64> {
+    /// A mask of `s` as a segmenter gives it: the silhouette at a fifth of a pixel's τ,
+    /// thresholded.
+    pub(crate) fn mask_of(cam: &Camera, s: &Spoon, pose: &Pose) -> Vec<f64> {
         let tau = 0.2 * (pose.translation - cam.position).length() / cam.fx;
-        silhouette(cam, &spoon(), pose, tau)
+        silhouette(cam, s, pose, tau)
             .occupancy
             .iter()
             .map(|&o| if o > 0.5 { 1.0 } else { 0.0 })
             .collect()
+    }
+
+    fn mask(cam: &Camera, pose: &Pose) -> Vec<f64> {
+        mask_of(cam, &spoon(), pose)
     }
 
     fn errors(fit: &Pose, truth: &Pose, cam: &Camera) -> (f64, f64, f64) {
