@@ -232,24 +232,12 @@ pub fn track(
     })
 }
 
-/// Fits Θ to a track (step 3): the path carried over to the scene's spoon, frame `k` at global
-/// step `steps[k]`.
-pub fn fit_skill(
-    steps: &[usize],
-    tracked: &Tracked,
-    scene: &Scene,
-    opts: &FitOptions,
-) -> anyhow::Result<ThetaFit> {
+/// Fits Θ to a track (step 3): the tracked frames carried over to the scene's spoon. The path
+/// loss aligns them in order and ignores their timing, so the frames' steps are not needed.
+pub fn fit_skill(tracked: &Tracked, scene: &Scene, opts: &FitOptions) -> anyhow::Result<ThetaFit> {
     let (i, robot, sk) = robot(scene)?;
     let tool = &scene.colliders[i];
-    // The tracked frames, carried over to the robot's spoon (the path loss aligns them in
-    // order and ignores their timing, so `steps` only checks the count).
-    anyhow::ensure!(
-        steps.len() == tracked.poses.len(),
-        "{} frames but {} tracked poses",
-        steps.len(),
-        tracked.poses.len()
-    );
+    // The tracked frames, carried over to the robot's spoon.
     let lever = tool.shape.bounding_radius();
     let points: Vec<[DVec3; 2]> = tracked
         .poses
@@ -277,8 +265,7 @@ pub fn fit(
     progress: impl FnMut(usize, usize),
 ) -> anyhow::Result<DemoFit> {
     let t = track(demo, scene, opts, progress)?;
-    let steps: Vec<usize> = demo.frames.iter().map(|f| f.0).collect();
-    let th = fit_skill(&steps, &t, scene, opts)?;
+    let th = fit_skill(&t, scene, opts)?;
     Ok(DemoFit {
         poses: t.poses,
         silhouette_loss: t.silhouette_loss,

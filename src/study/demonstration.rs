@@ -124,8 +124,7 @@ pub(crate) fn fitted(
         }
     };
     let t0 = std::time::Instant::now();
-    let steps: Vec<usize> = demo.frames.iter().map(|f| f.0).collect();
-    let th = fit_skill(&steps, &tracked, scene, &opts)?;
+    let th = fit_skill(&tracked, scene, &opts)?;
     let f = DemoFit {
         poses: tracked.poses,
         silhouette_loss: tracked.silhouette_loss,
