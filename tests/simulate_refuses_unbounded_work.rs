@@ -65,3 +65,35 @@ fn an_ordinary_run_prints_its_estimate_and_runs() {
         "{err}"
     );
 }
+
+/// `optimize` prints the most a rollout may cost (its longest horizon over Θ) and the run's
+/// compute in forward rollouts before it starts.
+#[cfg(feature = "lab")]
+#[test]
+fn optimize_prints_its_estimate() {
+    let dir = std::env::temp_dir().join(format!("powderlab-work-opt-{}", std::process::id()));
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(["optimize", "tests/scenes/tiny_transport.ron"])
+        .args([
+            "--method",
+            "random,grad",
+            "--epochs",
+            "1",
+            "--seeds",
+            "2",
+            "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    // The tiny scene's skill takes at most 154 steps at 14 substeps; random's rollout is one
+    // forward rollout and grad's 3.4, on each of two seeds.
+    assert!(
+        err.contains("work: a rollout at most 1070 particles × 14 substeps × 154 steps"),
+        "{err}"
+    );
+    assert!(err.contains("9 forward rollouts' worth in all"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -238,6 +238,36 @@ pub fn run(args: Args) -> Result<()> {
         init,
     };
     if !json_out {
+        // What the run may cost: each rollout at most the longest horizon any Θ gives.
+        let mut sim = problem.simulation(problem.scene_theta(), true)?;
+        let longest = match &sc.colliders[problem.tool].control {
+            Some(powderlab::scene::ControlSpec::Skill(sk)) => {
+                sc.simulation.steps.unwrap_or_else(|| {
+                    let bound = sk.step_bound(
+                        sc.simulation.dt,
+                        powderlab::scene::Scene::tool_bottom(&sc.colliders[problem.tool]),
+                    );
+                    bound.iter().map(|b| b.0).sum::<f64>().ceil() as usize
+                })
+            }
+            _ => sim.horizon,
+        };
+        let rollout = powderlab::scene::WorkEstimate {
+            particles: sim.particle_count(),
+            substeps: sim.params().substeps,
+            steps: longest,
+        };
+        let all = settings.forward_rollouts();
+        let total = powderlab::scene::WorkEstimate {
+            steps: (longest as f64 * all).round() as usize,
+            ..rollout
+        };
+        eprintln!(
+            "work: a rollout at most {}; {all:.0} forward rollouts' worth in all: at most {:.2e} particle-substeps, about {} at that rate",
+            rollout.describe(),
+            total.particle_substeps(),
+            total.duration()
+        );
         eprintln!(
             "{}: {} × {seeds} seeds × {epochs} {}, {} threads, out {}",
             scene.display(),

@@ -175,6 +175,25 @@ impl Settings {
         self.init.unwrap_or_else(|| theta_init(k))
     }
 
+    /// The run's compute in forward rollouts: every method's rollouts on every seed, a rollout
+    /// with the backward pass counted as `1 + BACKWARD_COST` (the hybrid's budget is already
+    /// in forward rollouts).
+    pub fn forward_rollouts(&self) -> f64 {
+        let per_seed: f64 = self
+            .methods
+            .iter()
+            .map(|&m| {
+                let cost = if m.all_gradient() {
+                    1.0 + report::BACKWARD_COST
+                } else {
+                    1.0
+                };
+                self.epochs_for(m) as f64 * cost
+            })
+            .sum();
+        self.seeds as f64 * per_seed
+    }
+
     /// Rollouts per seed that `method` may run (the hybrid's are its budget in forward
     /// rollouts; it runs fewer).
     pub fn epochs_for(&self, method: Method) -> usize {
@@ -476,6 +495,10 @@ mod tests {
             settings(20, false).rmsprop_for(Method::Grad).switch_epoch,
             15
         );
+        // The run's compute: grad, smoothed and carry at 3.4 forward rollouts each, the four
+        // forward-only methods at one; at equal compute the gradient methods' few rollouts.
+        assert!((settings(20, false).forward_rollouts() - (3.0 * 20.0 * 3.4 + 80.0)).abs() < 1e-9);
+        assert!((s.forward_rollouts() - ((6.0 + 8.0 + 6.0) * 3.4 + 80.0)).abs() < 1e-9);
         // Without it every method gets the same rollouts (the paper's framing).
         let p = settings(20, false);
         assert!(Method::ALL.iter().all(|&m| p.epochs_for(m) == 20));

@@ -34,10 +34,10 @@ impl WorkEstimate {
         self.particle_substeps() > WORK_LIMIT
     }
 
-    /// `N particles × S substeps × T steps = W particle-substeps, about D at 3 M/s`.
-    pub fn describe(&self) -> String {
+    /// The time at [`REFERENCE_RATE`], in the unit that suits it: `40 s`, `12 min`, `3.5 h`.
+    pub fn duration(&self) -> String {
         let s = self.seconds();
-        let time = if s < 120.0 {
+        if s < 120.0 {
             format!("{s:.0} s")
         } else if s < 7200.0 {
             format!("{:.0} min", s / 60.0)
@@ -45,7 +45,12 @@ impl WorkEstimate {
             format!("{:.1} h", s / 3600.0)
         } else {
             format!("{:.0} days", s / 86400.0)
-        };
+        }
+    }
+
+    /// `N particles × S substeps × T steps = W particle-substeps, about D at 3 M/s`.
+    pub fn describe(&self) -> String {
+        let time = self.duration();
         format!(
             "{} particles × {} substeps × {} steps = {:.2e} particle-substeps, about {time} at the reference machine's {:.0} M particle-substeps/s",
             self.particles,
