@@ -13,7 +13,7 @@
 //! complement solves them in O(frames): `S = Σ C_i − B_iᵀA_i⁻¹B_i`, `δs = −S⁻¹(Σ g_si −
 //! B_iᵀA_i⁻¹g_pi)`, `δp_i = −A_i⁻¹(g_pi + B_i·δs)`.
 
-use super::track::{tau_levels, taus, View};
+use super::track::{tau_levels, taus, Damping, View};
 use crate::calibrate::curvature::symmetric_eigen;
 use crate::math::pose::Pose;
 use crate::math::sdf::Spoon;
@@ -175,9 +175,9 @@ pub fn refine(
     let mut losses = Vec::new();
     for px in tau_levels(tau_px) {
         let mut t = all(&spoon, &poses, px);
-        let mut lambda = 1e-3;
+        let mut damping = Damping::default();
         for _ in 0..iterations {
-            let (dp, ds) = joint_step(&t, lambda);
+            let (dp, ds) = joint_step(&t, damping.lambda);
             let trial_spoon = reshaped(&spoon, ds);
             let trial_poses: Vec<Pose> = poses
                 .iter()
@@ -195,18 +195,13 @@ pub fn refine(
                 .is_ok()
                 .then(|| all(&trial_spoon, &trial_poses, px));
             let (before, after) = (total(&t), tried.as_deref().map_or(f64::INFINITY, total));
-            if after < before {
+            let (accept, go_on) = damping.judge(before, after);
+            if accept {
                 (spoon, poses, t) = (trial_spoon, trial_poses, tried.expect("a finite loss"));
-                lambda = (lambda * 0.3).max(1e-9);
                 steps += 1;
-                if before - after < 1e-6 * before {
-                    break;
-                }
-            } else {
-                lambda *= 10.0;
-                if lambda > 1e8 {
-                    break;
-                }
+            }
+            if !go_on {
+                break;
             }
         }
         losses = t.iter().map(|f| f.loss).collect();

@@ -107,6 +107,34 @@ pub fn taus(views: &[View], pose: &Pose, px: f64) -> Vec<f64> {
         .collect()
 }
 
+/// Levenberg–Marquardt's damping and stopping, shared by the tracker and the shape fit: λ
+/// starts at 1e-3, falls by 0.3 (to 1e-9) after an accepted step and rises tenfold after a
+/// refused one; a level stops when an accepted step lowers the loss by less than a part in 10⁶
+/// (converged) or λ passes 1e8 (no step lowers it).
+pub struct Damping {
+    pub lambda: f64,
+}
+
+impl Default for Damping {
+    fn default() -> Damping {
+        Damping { lambda: 1e-3 }
+    }
+}
+
+impl Damping {
+    /// For a step that takes the loss from `before` to `after`: whether to take it, and
+    /// whether to go on.
+    pub fn judge(&mut self, before: f64, after: f64) -> (bool, bool) {
+        if after < before {
+            self.lambda = (self.lambda * 0.3).max(1e-9);
+            (true, before - after >= 1e-6 * before)
+        } else {
+            self.lambda *= 10.0;
+            (false, self.lambda <= 1e8)
+        }
+    }
+}
+
 /// A Levenberg–Marquardt step: `δ = −(A + λ·diag A)⁻¹ g`, solved through the damped matrix's
 /// eigen-decomposition (it is symmetric positive semi-definite; null directions take no step).
 pub fn damped_step<const N: usize>(mut a: Vec<Vec<f64>>, g: &[f64], lambda: f64) -> [f64; N] {
@@ -175,7 +203,7 @@ pub fn fit_pose(
             l + opts.prior_weight * pr
         };
         let (mut l, mut jtj, mut jtr) = gauss_newton(views, spoon, &pose, &taus, scale);
-        let mut lambda = 1e-3;
+        let mut damping = Damping::default();
         for _ in 0..opts.iterations {
             let mut a: Vec<Vec<f64>> = jtj.iter().map(|r| r.to_vec()).collect();
             let mut g = jtr.to_vec();
@@ -186,7 +214,7 @@ pub fn fit_pose(
                     g[k] += opts.prior_weight * d[k];
                 }
             }
-            let delta = damped_step::<6>(a, &g, lambda);
+            let delta = damped_step::<6>(a, &g, damping.lambda);
             let trial = perturbed(
                 &pose,
                 DVec3::new(delta[0], delta[1], delta[2]),
@@ -194,19 +222,13 @@ pub fn fit_pose(
             );
             let (lt, jt, rt) = gauss_newton(views, spoon, &trial, &taus, scale);
             let (before, after) = (total(&pose, l), total(&trial, lt));
-            if after < before {
+            let (accept, go_on) = damping.judge(before, after);
+            if accept {
                 (pose, l, jtj, jtr) = (trial, lt, jt, rt);
-                lambda = (lambda * 0.3).max(1e-9);
                 steps += 1;
-                // Converged at this τ: the loss no longer falls by a part in 10⁶.
-                if before - after < 1e-6 * before {
-                    break;
-                }
-            } else {
-                lambda *= 10.0;
-                if lambda > 1e8 {
-                    break;
-                }
+            }
+            if !go_on {
+                break;
             }
         }
         loss = l;
