@@ -190,9 +190,9 @@ fn fit(a: FitArgs) -> Result<()> {
     let mut out = json!({
         "theta": r.theta,
         "path_loss_m2": r.path_loss,
-        "spoon": {"bowl_radius": r.spoon.bowl_radius, "bowl_depth": r.spoon.bowl_depth, "handle_length": r.spoon.handle_length},
-        "silhouette_loss_tracked_then_joint": r.rounds,
-        "frames": d.frames.iter().zip(&r.poses).zip(&r.silhouette_loss).map(|(((k, _), p), l)| json!({
+        "spoon": {"bowl_radius": r.track.spoon.bowl_radius, "bowl_depth": r.track.spoon.bowl_depth, "handle_length": r.track.spoon.handle_length},
+        "silhouette_loss_tracked_then_joint": r.track.rounds,
+        "frames": d.frames.iter().zip(&r.track.poses).zip(&r.track.silhouette_loss).map(|(((k, _), p), l)| json!({
             "index": k,
             "translation": p.translation.to_array(),
             "rotation": p.rotation.to_array(),
@@ -203,9 +203,9 @@ fn fit(a: FitArgs) -> Result<()> {
         "Θ_demo = {:?} (path loss {:.3e} m²); spoon: bowl radius {:.2} mm, bowl depth {:.2} mm, handle {:.1} mm",
         r.theta.map(|t| (t * 1e4).round() / 1e4),
         r.path_loss,
-        1e3 * r.spoon.bowl_radius,
-        1e3 * r.spoon.bowl_depth,
-        1e3 * r.spoon.handle_length
+        1e3 * r.track.spoon.bowl_radius,
+        1e3 * r.track.spoon.bowl_depth,
+        1e3 * r.track.spoon.handle_length
     );
     // A synthetic demonstration carries its truth: score against it.
     let truth_path = a.demo.join("truth.json");
@@ -234,7 +234,7 @@ fn fit(a: FitArgs) -> Result<()> {
     #[cfg(feature = "rerun")]
     {
         let rrd = a.rrd.unwrap_or_else(|| path.with_extension("rrd"));
-        demo::overlay::write(&rrd, &d, &r, &r.spoon)
+        demo::overlay::write(&rrd, &d, &r.track)
             .with_context(|| format!("{}: cannot write the recording", rrd.display()))?;
         eprintln!("recording: {}", rrd.display());
     }

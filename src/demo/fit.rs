@@ -59,15 +59,7 @@ impl Default for FitOptions {
 /// What a fit gives.
 #[derive(Clone, Debug)]
 pub struct DemoFit {
-    /// The tracked pose of each frame (the demonstrator's spoon).
-    pub poses: Vec<Pose>,
-    /// Each frame's silhouette loss at the end of its tracking.
-    pub silhouette_loss: Vec<f64>,
-    /// The demonstrator's spoon (fitted, or the scene's).
-    pub spoon: Spoon,
-    /// The total silhouette loss after the tracking, and after the joint fit of the shape and
-    /// the poses.
-    pub rounds: Vec<f64>,
+    pub track: Tracked,
     pub theta: [f64; 5],
     /// The path loss at Θ (m²).
     pub path_loss: f64,
@@ -164,9 +156,14 @@ fn track_all(
 /// What the tracking gives (steps 1–2).
 #[derive(Clone, Debug)]
 pub struct Tracked {
+    /// The tracked pose of each frame (the demonstrator's spoon).
     pub poses: Vec<Pose>,
+    /// Each frame's silhouette loss at the end.
     pub silhouette_loss: Vec<f64>,
+    /// The demonstrator's spoon (fitted, or the scene's).
     pub spoon: Spoon,
+    /// The total silhouette loss after the tracking, and after the joint fit of the shape and
+    /// the poses.
     pub rounds: Vec<f64>,
 }
 
@@ -267,10 +264,7 @@ pub fn fit(
     let t = track(demo, scene, opts, progress)?;
     let th = fit_skill(&t, scene, opts)?;
     Ok(DemoFit {
-        poses: t.poses,
-        silhouette_loss: t.silhouette_loss,
-        spoon: t.spoon,
-        rounds: t.rounds,
+        track: t,
         theta: th.theta,
         path_loss: th.loss,
     })
@@ -295,7 +289,7 @@ pub fn score(fit: &DemoFit, truth: &super::make::Truth, scene_spoon: &Spoon) -> 
     let shape = truth.spoon.unwrap_or_else(|| dimensions(scene_spoon));
     let mut mm: Vec<f64> = Vec::new();
     let mut deg: Vec<f64> = Vec::new();
-    for (p, (t, q)) in fit.poses.iter().zip(&truth.poses) {
+    for (p, (t, q)) in fit.track.poses.iter().zip(&truth.poses) {
         let q = glam::DQuat::from_array(*q);
         mm.push(1e3 * (p.translation - DVec3::from_array(*t)).length());
         deg.push(
@@ -322,7 +316,7 @@ pub fn score(fit: &DemoFit, truth: &super::make::Truth, scene_spoon: &Spoon) -> 
         theta_mean: errs.iter().sum::<f64>() / 5.0,
         theta_max: errs.iter().copied().fold(0.0, f64::max),
         shape_pct: std::array::from_fn(|k| {
-            100.0 * (dimensions(&fit.spoon)[k] - shape[k]).abs() / shape[k]
+            100.0 * (dimensions(&fit.track.spoon)[k] - shape[k]).abs() / shape[k]
         }),
     }
 }

@@ -9,9 +9,9 @@
 //! The timeline is `step`, each frame's global step. The file is written to `<path>.partial`
 //! and renamed when complete.
 
-use super::fit::DemoFit;
+use super::fit::Tracked;
 use super::format::{read_png, Demo};
-use crate::math::sdf::{Shape, Spoon};
+use crate::math::sdf::Shape;
 use crate::render::silhouette::silhouette;
 use crate::util::partial_path;
 use rerun::{Image, Mesh3D, Pinhole, Transform3D};
@@ -20,8 +20,9 @@ use std::path::Path;
 /// The overlay's colour: green, half transparent.
 const TRACK_RGBA: [u8; 4] = [40, 220, 90, 120];
 
-/// Writes the recording of `fit` (with the fitted `spoon`) over `demo` to `path`.
-pub fn write(path: &Path, demo: &Demo, fit: &DemoFit, spoon: &Spoon) -> anyhow::Result<()> {
+/// Writes the recording of the track `fit` (its poses and fitted spoon) over `demo` to `path`.
+pub fn write(path: &Path, demo: &Demo, fit: &Tracked) -> anyhow::Result<()> {
+    let spoon = &fit.spoon;
     let rec = rerun::RecordingStreamBuilder::new("powderlab demo fit").save(partial_path(path))?;
     rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Y_UP())?;
     for cam in &demo.cameras {

@@ -126,10 +126,7 @@ pub(crate) fn fitted(
     let t0 = std::time::Instant::now();
     let th = fit_skill(&tracked, scene, &opts)?;
     let f = DemoFit {
-        poses: tracked.poses,
-        silhouette_loss: tracked.silhouette_loss,
-        spoon: tracked.spoon,
-        rounds: tracked.rounds,
+        track: tracked,
         theta: th.theta,
         path_loss: th.loss,
     };
@@ -138,7 +135,7 @@ pub(crate) fn fitted(
         truth: truth.theta,
         fitted: f.theta,
         spoon_truth: truth.spoon.unwrap_or_else(|| dimensions(&robot)),
-        spoon_fit: dimensions(&f.spoon),
+        spoon_fit: dimensions(&f.track.spoon),
         shape_pct: s.shape_pct,
         views: demo.cameras.len(),
         pose_mm: s.pose_mm,

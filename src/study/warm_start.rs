@@ -21,7 +21,7 @@ use crate::optim::problem::Problem;
 use crate::optim::report::curve;
 use crate::optim::{self, sobol_thetas, Method};
 use crate::scene::Scene;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 use std::path::Path;
 
 /// Sobol points the expert's skill is chosen from.
@@ -32,7 +32,7 @@ pub const SEEDS: usize = 10;
 pub const BUDGET: usize = 10;
 
 /// The race's outcome.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(Clone, Debug, Serialize)]
 pub struct WarmStart {
     pub expert: [f64; 5],
     /// |dose error| of the expert's skill and of Θ_demo itself, in `unit`.
