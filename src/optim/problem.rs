@@ -69,6 +69,16 @@ impl Problem {
         })
     }
 
+    /// The same problem with its bodies starting from `states` (see
+    /// [`Build::with_start`]): a planner's next scoop from the powder the last one left.
+    pub fn with_start(
+        mut self,
+        states: &[crate::components::BodyState],
+    ) -> anyhow::Result<Problem> {
+        self.build = self.build.with_start(&self.scene, states)?;
+        Ok(self)
+    }
+
     /// The Θ written in the scene.
     pub fn scene_theta(&self) -> [f64; 5] {
         match &self.scene.colliders[self.tool].control {

@@ -23,7 +23,9 @@ pub mod validate;
 pub mod work;
 
 pub use parse::locate;
-pub use prepare::{Prepared, PreparedBody, PreparedCollider, StabilityReport, MAX_AUTO_SUBSTEPS};
+pub use prepare::{
+    Prepared, PreparedBody, PreparedCollider, StabilityReport, StartColumns, MAX_AUTO_SUBSTEPS,
+};
 pub use types::*;
 pub use work::{WorkEstimate, WORK_LIMIT};
 

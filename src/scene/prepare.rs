@@ -16,7 +16,7 @@ use crate::components::ColliderKind;
 use crate::error::{FieldError, SceneError};
 use crate::materials::MaterialSpec;
 use crate::math::pose::Pose;
-use glam::DVec3;
+use glam::{DMat3, DVec3};
 use std::sync::Arc;
 
 /// The most substeps per step `stability: Auto` takes to meet the CFL bound. Beyond it a scene
@@ -66,6 +66,30 @@ pub struct PreparedBody {
     /// Lamé parameters (μ, λ).
     pub lame: (f64, f64),
     pub velocity: DVec3,
+    /// A state to start from instead of the fill at rest (velocities, APIC `C` and `F`, one per
+    /// particle of `x`): a snapshot of an earlier rollout, set by
+    /// [`Build::with_start`](crate::sim::Build::with_start).
+    pub start: Option<Arc<StartColumns>>,
+}
+
+/// The per-particle state a body starts from besides its positions.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StartColumns {
+    pub v: Vec<DVec3>,
+    pub c: Vec<DMat3>,
+    pub f: Vec<DMat3>,
+    /// The largest of `|v|`, for the stability guard.
+    pub max_speed: f64,
+}
+
+impl PreparedBody {
+    /// The fastest particle at the start (m/s), which the stability guard adds to the wave
+    /// speed.
+    pub fn speed(&self) -> f64 {
+        self.start
+            .as_ref()
+            .map_or(self.velocity.length(), |s| s.max_speed)
+    }
 }
 
 /// A scene that passed every check, with what the checks derived.
@@ -281,6 +305,7 @@ impl Scene {
                 lame: mat.lame(),
                 velocity: DVec3::from(b.velocity),
                 material: mat,
+                start: None,
             });
         }
         let mut prepared = Prepared {
@@ -319,7 +344,7 @@ impl Prepared {
     }
 
     /// The stability guard and the horizon, from the bodies and the colliders' controls.
-    fn guard(&mut self, scene: &Scene) -> Result<(), SceneError> {
+    pub(crate) fn guard(&mut self, scene: &Scene) -> Result<(), SceneError> {
         let s = &scene.simulation;
         // The speeds, and the field that sets each (what a refusal points at).
         let (mut wave_speed, mut wave_field) = (0.0f64, String::from("materials"));
@@ -336,8 +361,8 @@ impl Prepared {
             if c > wave_speed {
                 (wave_speed, wave_field) = (c, format!("materials.{}", scene.bodies[i].material));
             }
-            if b.velocity.length() > max_speed {
-                (max_speed, speed_field) = (b.velocity.length(), format!("bodies[{i}].velocity"));
+            if b.speed() > max_speed {
+                (max_speed, speed_field) = (b.speed(), format!("bodies[{i}].velocity"));
             }
         }
         let blame = if wave_speed >= max_speed {

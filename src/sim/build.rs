@@ -8,7 +8,7 @@
 use super::{SimOptions, Simulation};
 use crate::components::*;
 use crate::error::SceneError;
-use crate::scene::{ColliderKindSpec, Prepared, Scene};
+use crate::scene::{ColliderKindSpec, Prepared, PreparedBody, Scene, StartColumns};
 use crate::systems::{self, SubstepPlan};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
@@ -71,6 +71,70 @@ impl Build {
         })
     }
 
+    /// The same build with every body starting from `states` (one per body, in scene order,
+    /// with the body's name) instead of its fill at rest: a snapshot of an earlier rollout, so
+    /// that a sequence of actions (a planner's scoops) continues where the last one ended. A
+    /// state may hold fewer particles than the fill (a planner discards what fell outside the
+    /// cups); an empty body is refused, as in a scene.
+    ///
+    /// Refused: a different body count, columns of unequal length, a non-finite value or a
+    /// hardening material (its plastic strain is not part of [`BodyState`]). The stability
+    /// guard runs again with the state's fastest particle, so a snapshot in motion may raise
+    /// the substeps (and a scene under `Strict` refuse it), as a body's initial velocity does.
+    pub fn with_start(&self, scene: &Scene, states: &[BodyState]) -> anyhow::Result<Build> {
+        let p = &self.prepared;
+        anyhow::ensure!(
+            states.len() == p.bodies.len(),
+            "a start state of {} bodies for a scene of {}",
+            states.len(),
+            p.bodies.len()
+        );
+        let mut bodies = Vec::with_capacity(states.len());
+        for (i, (st, pb)) in states.iter().zip(p.bodies.iter()).enumerate() {
+            let n = st.x.len();
+            anyhow::ensure!(
+                n > 0 && st.v.len() == n && st.c.len() == n && st.f.len() == n,
+                "start state of body {i} ('{}'): {} positions, {} velocities, {} C and {} F; \
+                 expected the same number, at least one",
+                st.name,
+                n,
+                st.v.len(),
+                st.c.len(),
+                st.f.len()
+            );
+            anyhow::ensure!(
+                !pb.material.hardens(),
+                "start state of body {i} ('{}'): its material hardens, and a snapshot does \
+                 not carry the plastic strain",
+                st.name
+            );
+            let finite = st.x.iter().chain(&st.v).all(|a| a.is_finite())
+                && st.c.iter().chain(&st.f).all(|m| m.is_finite());
+            anyhow::ensure!(
+                finite,
+                "start state of body {i} ('{}'): a non-finite value",
+                st.name
+            );
+            bodies.push(PreparedBody {
+                x: st.x.clone(),
+                start: Some(Arc::new(StartColumns {
+                    v: st.v.clone(),
+                    c: st.c.clone(),
+                    f: st.f.clone(),
+                    max_speed: st.v.iter().map(|v| v.length()).fold(0.0, f64::max),
+                })),
+                ..pb.clone()
+            });
+        }
+        let mut prepared = p.clone();
+        prepared.bodies = Arc::new(bodies);
+        prepared.guard(scene)?;
+        Ok(Build {
+            prepared,
+            node_contacts: self.node_contacts.clone(),
+        })
+    }
+
     /// Spawns a world at the scene's start and builds its schedule. `scene` is the scene this
     /// build was made from (with the new controls' source, for a build with new controls).
     pub fn simulation(&self, owned: Scene, opts: &SimOptions) -> Result<Simulation, SceneError> {
@@ -104,9 +168,21 @@ impl Build {
                     lame: pb.lame,
                 },
                 Position(pb.x.clone()),
-                Velocity(vec![pb.velocity; np]),
-                AffineVelocity(vec![DMat3::ZERO; np]),
-                DeformationGradient(vec![DMat3::IDENTITY; np]),
+                Velocity(
+                    pb.start
+                        .as_ref()
+                        .map_or_else(|| vec![pb.velocity; np], |s| s.v.clone()),
+                ),
+                AffineVelocity(
+                    pb.start
+                        .as_ref()
+                        .map_or_else(|| vec![DMat3::ZERO; np], |s| s.c.clone()),
+                ),
+                DeformationGradient(
+                    pb.start
+                        .as_ref()
+                        .map_or_else(|| vec![DMat3::IDENTITY; np], |s| s.f.clone()),
+                ),
                 TrialDeformation(vec![DMat3::IDENTITY; np]),
                 SvdFactors {
                     u: vec![DMat3::IDENTITY; np],
