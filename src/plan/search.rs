@@ -39,6 +39,12 @@ pub trait Task {
     fn contact_loc(&mut self, n: &Self::Node) -> Vec<(Self::Node, f64)>;
     /// A lower bound on the cost from `n` to a success (0 is always admissible).
     fn heuristic(&self, n: &Self::Node) -> f64;
+    /// How far `n` is from the goal, for the plan a search without success returns (the
+    /// node made with the smallest; ties to the first made). Default: the heuristic, which
+    /// is often too coarse (a dosing task's counts scoops, its distance counts grams).
+    fn distance(&self, n: &Self::Node) -> f64 {
+        self.heuristic(n)
+    }
 }
 
 /// How the search runs.
@@ -54,8 +60,8 @@ pub struct SearchOptions {
 /// What a search gives.
 #[derive(Clone, Debug)]
 pub struct SearchResult<N> {
-    /// From the start to a success, or (when none was found) to the node with the lowest
-    /// heuristic seen.
+    /// From the start to a success, or (when none was found) to the node of smallest
+    /// [`Task::distance`] made.
     pub path: Vec<N>,
     pub cost: f64,
     pub success: bool,
@@ -130,7 +136,6 @@ pub fn search<T: Task>(
         path
     };
     let mut expansions = 0;
-    let mut closest = 0;
     while let Some(Entry { index, .. }) = frontier.pop() {
         let (node, _, g, moved) = arena[index].clone();
         if task.is_success(&node) {
@@ -140,9 +145,6 @@ pub fn search<T: Task>(
                 success: true,
                 expansions,
             });
-        }
-        if task.heuristic(&node) < task.heuristic(&arena[closest].0) {
-            closest = index;
         }
         if expansions == opts.max_expansions {
             break;
@@ -174,6 +176,12 @@ pub fn search<T: Task>(
                     (to, Some(index), g + cost, true),
                 );
             }
+        }
+    }
+    let mut closest = 0;
+    for (i, n) in arena.iter().enumerate() {
+        if task.distance(&n.0) < task.distance(&arena[closest].0) {
+            closest = i;
         }
     }
     Ok(SearchResult {
