@@ -17,6 +17,7 @@
 mod fill;
 pub mod fuzz;
 pub mod parse;
+pub mod plan;
 pub mod prepare;
 pub mod types;
 pub mod validate;

@@ -314,6 +314,9 @@ pub struct Scene {
     /// domain floor.
     #[serde(default)]
     pub loss: Option<LossSpec>,
+    /// What `powderlab plan` searches for; other commands ignore it.
+    #[serde(default)]
+    pub plan: Option<super::plan::PlanSpec>,
     /// Where the scene came from (for messages).
     #[serde(skip)]
     pub path: PathBuf,

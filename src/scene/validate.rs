@@ -339,6 +339,9 @@ impl Scene {
                 pos("record.point_radius", rad, rad > 0.0, "> 0 m")?;
             }
         }
+        if let Some(super::plan::PlanSpec::Dosing(d)) = &self.plan {
+            d.validate(self)?;
+        }
         // Behind the range checks above: any other field that is NaN or infinite (a rotation, a
         // loss target, a recording option) would reach the simulation as a silent NaN.
         if let Some((field, v)) = crate::nonfinite::first_nonfinite(self) {
