@@ -45,6 +45,10 @@ enum Command {
     /// on the same rollout budget); writes metrics.csv, summary.json, indicator.svg, best.rrd.
     #[cfg(feature = "lab")]
     Optimize(cli::optimize::Args),
+    /// Plan a dose larger than one spoonful: A* over optimised scoops (seed B's Algorithm 1),
+    /// or the greedy and scripted baselines; writes plan-METHOD.json and plan-METHOD.rrd.
+    #[cfg(feature = "lab")]
+    Plan(cli::plan::Args),
     /// Check against exact solutions and published experiments (the quick set without a case).
     #[cfg(feature = "lab")]
     Validate(cli::validate::Args),
@@ -70,6 +74,8 @@ fn main() {
         Command::Render(a) => cli::render::run(a),
         #[cfg(feature = "lab")]
         Command::Optimize(a) => cli::optimize::run(a),
+        #[cfg(feature = "lab")]
+        Command::Plan(a) => cli::plan::run(a),
         #[cfg(feature = "lab")]
         Command::Validate(a) => cli::validate::run(a),
         #[cfg(feature = "lab")]

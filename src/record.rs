@@ -28,6 +28,9 @@ pub struct Recorder {
     every: usize,
     target: Option<String>,
     point_radius: f32,
+    /// Added to the world's step on the timelines: a sequence of simulations (a plan's scoops)
+    /// recorded one after another.
+    step_offset: usize,
 }
 
 fn entity_of(c: &Collider) -> String {
@@ -106,6 +109,7 @@ impl Recorder {
             every: every.max(1),
             target,
             point_radius: point_radius as f32,
+            step_offset: 0,
         })
     }
 
@@ -116,6 +120,11 @@ impl Recorder {
         }
         let m = frame_metrics(world, self.target.as_deref());
         self.frame_with(world, &m)
+    }
+
+    /// Records the next simulation's step `k` at step `k + offset`.
+    pub fn set_step_offset(&mut self, offset: usize) {
+        self.step_offset = offset;
     }
 
     /// The file the recording completes to.
@@ -135,11 +144,10 @@ impl Recorder {
         if !self.records(world) {
             return Ok(());
         }
-        let clock = *world.resource::<Clock>();
+        let step = world.resource::<Clock>().step + self.step_offset;
         let dt = world.resource::<SimParams>().dt;
-        self.rec.set_time_sequence("step", clock.step as i64);
-        self.rec
-            .set_duration_secs("sim_time", clock.step as f64 * dt);
+        self.rec.set_time_sequence("step", step as i64);
+        self.rec.set_duration_secs("sim_time", step as f64 * dt);
         let mut q = world.query::<(&Body, &Position, &Velocity)>();
         let mut bodies: Vec<_> = q.iter(world).collect();
         bodies.sort_by_key(|b| b.0.index);

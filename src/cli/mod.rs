@@ -12,6 +12,8 @@ pub mod gradcheck;
 #[cfg(feature = "lab")]
 pub mod optimize;
 #[cfg(feature = "lab")]
+pub mod plan;
+#[cfg(feature = "lab")]
 pub mod render;
 pub mod simulate;
 #[cfg(feature = "lab")]

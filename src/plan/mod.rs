@@ -4,4 +4,6 @@
 //! a cup's powder next ([`contact`]).
 
 pub mod contact;
+pub mod dosing;
+pub mod output;
 pub mod search;

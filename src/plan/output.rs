@@ -1,0 +1,85 @@
+//! What `powderlab plan` writes into its folder: `plan.json` (the result and every scoop's Θ),
+//! `journal.jsonl` (every rollout, for a resumed plan) and `plan.rrd` (the scoops of the plan
+//! one after another, on one timeline). The journal's name carries a fingerprint of the scene
+//! and the seed, so a changed scene starts afresh instead of replaying stale rollouts. The
+//! methods share it: a node's key and Θ fix its rollout whichever method asks, so greedy
+//! replays the scoops it has in common with A* (its first ones) instead of simulating them
+//! again, and its wall time is that of the rest.
+
+use super::dosing::{DoseNode, Dosing, Method, PlanResult};
+use crate::scene::Scene;
+use crate::util::write_atomic;
+use std::path::{Path, PathBuf};
+
+/// The journal of the plans of `scene` from `seed`, in `out`.
+pub fn journal_path(out: &Path, scene: &Scene, seed: u64) -> PathBuf {
+    let fp = crate::optim::fnv1a(&format!("{}\n{seed}", scene.source));
+    out.join(format!("journal-{fp}.jsonl"))
+}
+
+/// Plans `scene` with `method` into `out`: `plan.json`, the journal and, with `record`,
+/// `plan.rrd`. `progress` hears of every rollout (rollouts so far, a message).
+pub fn plan_into(
+    out: &Path,
+    scene: Scene,
+    method: Method,
+    seed: u64,
+    record: bool,
+    progress: Box<dyn FnMut(usize, &str) + Send>,
+) -> anyhow::Result<PlanResult> {
+    std::fs::create_dir_all(out)?;
+    let journal = journal_path(out, &scene, seed);
+    let mut task = Dosing::new(scene, seed, Some(&journal))?;
+    task.progress = progress;
+    let (result, path) = task.run(method)?;
+    write_atomic(
+        &out.join(format!("plan-{}.json", method.name())),
+        serde_json::to_string_pretty(&result)?.as_bytes(),
+    )?;
+    if record {
+        record_path(
+            &task,
+            &path,
+            &out.join(format!("plan-{}.rrd", method.name())),
+        )?;
+    }
+    Ok(result)
+}
+
+/// Records the scoops of `path` one after another (each simulated again from its node).
+#[cfg(feature = "rerun")]
+fn record_path(task: &Dosing, path: &[DoseNode], file: &Path) -> anyhow::Result<()> {
+    let mut recorder: Option<crate::record::Recorder> = None;
+    let mut offset = 0;
+    for pair in path.windows(2) {
+        let Some(scoop) = &pair[1].scoop else {
+            continue;
+        };
+        let mut sim = task.scoop_simulation(&pair[0], scoop.theta)?;
+        let r = match &mut recorder {
+            Some(r) => r,
+            None => recorder.insert(crate::record::Recorder::for_scene(
+                file,
+                &mut sim.world,
+                &sim.scene,
+            )?),
+        };
+        r.set_step_offset(offset);
+        r.frame(&mut sim.world)?;
+        let steps = sim.horizon;
+        for _ in 0..steps {
+            sim.step()?;
+            r.frame(&mut sim.world)?;
+        }
+        offset += steps + 1;
+    }
+    if let Some(r) = recorder {
+        r.finish()?;
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "rerun"))]
+fn record_path(_: &Dosing, _: &[DoseNode], _: &Path) -> anyhow::Result<()> {
+    anyhow::bail!("a plan's recording needs the `rerun` feature")
+}

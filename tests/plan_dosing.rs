@@ -1,0 +1,193 @@
+//! `powderlab plan`: a malformed plan request is refused in one line naming the file and the
+//! field; a plan on a small scene writes its result and recording, and a rerun replays it from
+//! the journal to the same scoops without simulating its rollouts again.
+#![cfg(feature = "lab")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+mod common;
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("powderlab-plan-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// The small transport scene asked for 3 g, a spoonful and a half, with `plan` as its plan.
+fn scene_with(dir: &Path, plan: &str) -> PathBuf {
+    let base = std::fs::read_to_string(common::scene_path("../tests/scenes/tiny_transport.ron"))
+        .unwrap()
+        .replace("Grams(2.0)", "Grams(3.0)");
+    let text =
+        base.trim_end().strip_suffix(')').unwrap().to_string() + &format!("    plan: {plan},\n)\n");
+    let p = dir.join("plan.ron");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn plan(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .arg("plan")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// Expects `powderlab plan ARGS` to fail with exit code 2 and one line; returns it.
+fn refused(args: &[&str]) -> String {
+    let out = plan(args);
+    let err = String::from_utf8_lossy(&out.stderr).trim().to_string();
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert_eq!(err.lines().count(), 1, "one line: {err}");
+    err
+}
+
+#[test]
+fn a_malformed_plan_request_gets_a_clear_error() {
+    let d = scratch("bad");
+    for (plan, field, hint) in [
+        (
+            r#"Some(Dosing((source: "bucket", spoon_capacity_g: 4.0)))"#,
+            "plan.source",
+            "Cup container",
+        ),
+        (
+            r#"Some(Dosing((source: "target_cup", spoon_capacity_g: 4.0)))"#,
+            "plan.source",
+            "other than the task's target",
+        ),
+        (
+            r#"Some(Dosing((source: "source_cup", spoon_capacity_g: 4.0, explore: 1.5)))"#,
+            "plan.explore",
+            "[0, 1]",
+        ),
+        (
+            r#"Some(Dosing((source: "source_cup", spoon_capacity_g: -1.0)))"#,
+            "plan.spoon_capacity_g",
+            "> 0",
+        ),
+        (
+            r#"Some(Dosing((source: "source_cup", spoon_capacity_g: 4.0, clearance: 0.05)))"#,
+            "plan.clearance",
+            "inner radius",
+        ),
+        (
+            r#"Some(Dosing((source: "source_cup", spoon_capacity_g: 4.0, scoop_budget: 0)))"#,
+            "plan.scoop_budget",
+            "from 1",
+        ),
+        (
+            r#"Some(Dosing((source: "source_cup", spoon_capacity_g: 4.0, scoops: 3)))"#,
+            "scoops",
+            "",
+        ),
+    ] {
+        let p = scene_with(&d, plan);
+        let err = refused(&[
+            p.to_str().unwrap(),
+            "--out",
+            d.join("out").to_str().unwrap(),
+        ]);
+        assert!(err.contains("plan.ron"), "names the file: {err}");
+        assert!(err.contains(field) && err.contains(hint), "{field}: {err}");
+    }
+    // A scene without a plan says what to add.
+    let tiny = common::scene_path("../tests/scenes/tiny_transport.ron");
+    let err = refused(&[
+        tiny.to_str().unwrap(),
+        "--out",
+        d.join("out").to_str().unwrap(),
+    ]);
+    assert!(err.contains("no `plan` section"), "{err}");
+    let p = scene_with(
+        &d,
+        r#"Some(Dosing((source: "source_cup", spoon_capacity_g: 4.0, clearance: 0.012)))"#,
+    );
+    let err = refused(&[p.to_str().unwrap(), "--method", "dijkstra"]);
+    assert!(err.contains("--method dijkstra"), "{err}");
+    assert!(!d.join("out").exists(), "nothing written");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn a_plan_is_written_and_a_rerun_replays_it() {
+    let d = scratch("run");
+    let p = scene_with(
+        &d,
+        r#"Some(Dosing((source: "source_cup", spoon_capacity_g: 4.0, clearance: 0.012,
+            scoop_budget: 2, max_expansions: 3, max_scoops: 3, min_progress_g: 0.1)))"#,
+    );
+    let out = d.join("out");
+    let run = |rrd: bool| -> Vec<serde_json::Value> {
+        let mut args = vec![
+            p.to_str().unwrap(),
+            "--method",
+            "greedy,astar",
+            "--json",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        if !rrd {
+            args.push("--no-rrd");
+        }
+        let o = plan(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout)
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect()
+    };
+    let first = run(true);
+    assert_eq!(first.len(), 2);
+    // Greedy runs first and simulates everything; A* shares its journal and replays the
+    // scoops the two have in common (the first, at least).
+    assert_eq!(first[0]["replayed"], 0);
+    assert!(first[1]["replayed"].as_u64().unwrap() >= 2, "{}", first[1]);
+    for r in &first {
+        let scoops = r["scoops"].as_array().unwrap();
+        assert!(!scoops.is_empty() && scoops.len() <= 3, "{r}");
+        // Each scoop adds what the target cup gained, and the last leaves what was delivered.
+        let mut before = 0.0;
+        for s in scoops {
+            let got = s["delivered_g"].as_f64().unwrap();
+            assert!(
+                (s["added_g"].as_f64().unwrap() - (got - before)).abs() < 1e-9,
+                "{s}"
+            );
+            assert_eq!(s["rollouts"], 2);
+            before = got;
+        }
+        assert!((r["delivered_g"].as_f64().unwrap() - before).abs() < 1e-12);
+        let err = (r["target_g"].as_f64().unwrap() - before).abs();
+        assert!((r["dose_error_g"].as_f64().unwrap() - err).abs() < 1e-12);
+        assert_eq!(r["success"].as_bool().unwrap(), err <= 0.1);
+        let method = r["method"].as_str().unwrap();
+        let rrd = out.join(format!("plan-{method}.rrd"));
+        assert!(rrd.exists(), "{}", rrd.display());
+        let saved: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join(format!("plan-{method}.json"))).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(&saved, r);
+    }
+    let verify = common::rerun_cli()
+        .args(["rrd", "verify"])
+        .arg(out.join("plan-astar.rrd"))
+        .output()
+        .unwrap();
+    assert!(
+        verify.status.success(),
+        "{}",
+        String::from_utf8_lossy(&verify.stderr)
+    );
+    // The rerun finds every rollout in the journal and takes the same path.
+    let second = run(false);
+    for (a, b) in first.iter().zip(&second) {
+        assert_eq!(a["scoops"], b["scoops"]);
+        assert_eq!(a["rollouts"], b["rollouts"]);
+        assert_eq!(b["replayed"], b["rollouts"]);
+    }
+    std::fs::remove_dir_all(&d).ok();
+}
