@@ -116,9 +116,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "demonstration" {
         return demonstration_cmd(a);
     }
+    if a.study == "planning" {
+        return planning_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration or demonstration",
+            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration, demonstration or planning",
             a.study
         );
     }
@@ -493,6 +496,66 @@ fn demonstration_cmd(a: Args) -> Result<()> {
         start,
         "demonstration.md",
         json!({ "rows": rows.len() }),
+    );
+    Ok(())
+}
+
+/// `powderlab study planning`: multi-scoop dosing over randomised instances, A* against
+/// greedy and scripted (`--seeds` instances, 10 by default).
+fn planning_cmd(a: Args) -> Result<()> {
+    use powderlab::plan::dosing::Method;
+    use powderlab::study::planning;
+    let scene_path = a
+        .scene
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("scenes/multi_scoop_dosing.ron"));
+    let scene = powderlab::scene::Scene::load(&scene_path)?;
+    let methods: Vec<Method> = if a.method == ["all"] {
+        vec![Method::Astar, Method::Greedy, Method::Scripted]
+    } else {
+        a.method
+            .iter()
+            .map(|m| {
+                Method::parse(m).ok_or_else(|| {
+                    anyhow::anyhow!("--method {m}: expected astar, greedy, scripted or all")
+                })
+            })
+            .collect::<Result<_>>()?
+    };
+    let instances = planning::instances(a.seeds, 2026);
+    let pb = super::bar((instances.len() * methods.len()) as u64, a.json);
+    let pb2 = pb.clone();
+    let start = Instant::now();
+    let rows = planning::run(
+        &scene,
+        &a.out.join("planning"),
+        &instances,
+        &methods,
+        &move |k, m| {
+            pb2.inc(1);
+            pb2.set_message(format!("instance {k}: {}", m.name()));
+        },
+    )?;
+    pb.finish_and_clear();
+    let command = format!(
+        "powderlab study planning --seeds {} --out {}",
+        a.seeds,
+        a.out.display()
+    );
+    let md = planning::report(
+        &rows,
+        &command,
+        &powderlab::study::optimizers::machine(),
+        start.elapsed().as_secs_f64(),
+    );
+    powderlab::util::create_output_dir(&a.results, "--results")?;
+    powderlab::util::write_atomic(&a.results.join("planning.md"), md.as_bytes())?;
+    print_page(
+        &a,
+        &md,
+        start,
+        "planning.md",
+        json!({ "instances": rows.len() }),
     );
     Ok(())
 }

@@ -26,6 +26,7 @@ pub mod directions;
 pub mod growth;
 pub mod landscape;
 pub mod optimizers;
+pub mod planning;
 pub mod plot;
 pub mod refine;
 pub mod warm_start;
