@@ -121,6 +121,13 @@ mod tests {
                 radius: 0.02,
                 half_height: 0.01,
             },
+            Shape::Spatula {
+                blade_width: 0.04,
+                blade_height: 0.02,
+                thickness: 0.002,
+                handle_length: 0.06,
+                handle_radius: 0.003,
+            },
         ];
         for s in shapes {
             let m = s.mesh();

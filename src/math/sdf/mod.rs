@@ -13,6 +13,7 @@
 pub mod cup;
 pub mod custom;
 pub mod primitives;
+pub mod spatula;
 pub mod spoon;
 #[cfg(test)]
 mod tests;
@@ -23,6 +24,7 @@ pub use primitives::{
     circle_distance_hessian, cylinder_hessian, sd_box, sd_capsule, sd_capsule_y, sd_cylinder_y,
     sd_sphere,
 };
+pub use spatula::Spatula;
 pub use spoon::{sd_cut_hollow_sphere, spoon_rim_and_handle, Spoon};
 
 use crate::error::FieldError;
@@ -68,6 +70,16 @@ pub enum Shape {
         #[serde(default)]
         handle_rise: f64,
     },
+    /// A thin rectangular blade and a capsule handle rising from the middle of its top edge,
+    /// for pushing and pulling powder. Origin at the middle of the blade's bottom edge; the
+    /// blade spans local x and y, its faces look along ±z.
+    Spatula {
+        blade_width: f64,
+        blade_height: f64,
+        thickness: f64,
+        handle_length: f64,
+        handle_radius: f64,
+    },
     /// A shape a program registered ([`register_shape`]), with its parameters.
     Custom(CustomShape),
 }
@@ -104,6 +116,27 @@ impl Shape {
                 handle_length,
                 handle_radius,
                 handle_rise,
+            }),
+            _ => None,
+        }
+    }
+
+    /// The spatula's dimensions, if it is one.
+    #[inline(always)]
+    pub fn spatula(&self) -> Option<Spatula> {
+        match *self {
+            Shape::Spatula {
+                blade_width,
+                blade_height,
+                thickness,
+                handle_length,
+                handle_radius,
+            } => Some(Spatula {
+                blade_width,
+                blade_height,
+                thickness,
+                handle_length,
+                handle_radius,
             }),
             _ => None,
         }
@@ -152,6 +185,7 @@ impl Shape {
             Shape::Cylinder { .. } => "cylinder",
             Shape::Cup { .. } => "cup",
             Shape::Spoon { .. } => "spoon",
+            Shape::Spatula { .. } => "spatula",
             Shape::Custom(c) => c.tag(),
         }
     }
@@ -172,6 +206,7 @@ impl Shape {
             } => sd_cylinder_y(p, 0.0, radius, half_height),
             Shape::Cup { .. } => self.cup().expect("a cup").sdf(p),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").sdf(p),
+            Shape::Spatula { .. } => self.spatula().expect("a spatula").sdf(p),
             Shape::Custom(ref c) => c.sdf(p),
         }
     }
@@ -207,6 +242,7 @@ impl Shape {
             } => Some(cylinder_hessian(p, 0.0, radius, half_height)),
             Shape::Cup { .. } => Some(self.cup().expect("a cup").hessian(p)),
             Shape::Spoon { .. } => Some(self.spoon().expect("a spoon").hessian(p)),
+            Shape::Spatula { .. } => Some(self.spatula().expect("a spatula").hessian(p)),
             Shape::Custom(ref c) => c.sdf_hessian(p),
         }
     }
@@ -231,6 +267,7 @@ impl Shape {
                 ..
             } => outer_radius.hypot(height),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").bounding_radius(),
+            Shape::Spatula { .. } => self.spatula().expect("a spatula").bounding_radius(),
             Shape::Custom(ref c) => c.bounding_radius(),
         }
     }
@@ -248,6 +285,7 @@ impl Shape {
                 handle_radius,
                 ..
             } => thickness.min(2.0 * handle_radius),
+            Shape::Spatula { .. } => self.spatula().expect("a spatula").min_wall(),
             Shape::Custom(ref c) => c.min_wall(),
             _ => f64::INFINITY,
         }
@@ -269,7 +307,7 @@ impl Shape {
                 radius,
             } => DVec3::new(0.0, -half_length - radius, 0.0),
             Shape::Cylinder { half_height, .. } => DVec3::new(0.0, -half_height, 0.0),
-            Shape::Cup { .. } | Shape::Plane { .. } => DVec3::ZERO,
+            Shape::Cup { .. } | Shape::Plane { .. } | Shape::Spatula { .. } => DVec3::ZERO,
             Shape::Custom(ref c) => c.lowest_local_point(),
         }
     }
@@ -301,6 +339,7 @@ impl Shape {
             }
             Shape::Cup { .. } => self.cup().expect("a cup").validate(),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").validate(),
+            Shape::Spatula { .. } => self.spatula().expect("a spatula").validate(),
             Shape::Custom(ref c) => c.validate(),
         }
     }
@@ -321,6 +360,7 @@ impl Shape {
             } => primitives::cylinder_mesh(radius, half_height),
             Shape::Cup { .. } => self.cup().expect("a cup").mesh(),
             Shape::Spoon { .. } => self.spoon().expect("a spoon").mesh(),
+            Shape::Spatula { .. } => self.spatula().expect("a spatula").mesh(),
             Shape::Custom(ref c) => c.mesh(),
         }
     }

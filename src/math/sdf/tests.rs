@@ -39,6 +39,13 @@ fn shapes() -> Vec<Shape> {
             handle_radius: 0.003,
             handle_rise: 0.02,
         },
+        Shape::Spatula {
+            blade_width: 0.04,
+            blade_height: 0.02,
+            thickness: 0.002,
+            handle_length: 0.06,
+            handle_radius: 0.003,
+        },
     ]
 }
 
