@@ -19,12 +19,12 @@
 //!   mass (less the tolerance) over `spoon_capacity_g`, rounded up: admissible when no scoop
 //!   carries more.
 //!
-//! Every rollout goes through a journal (`journal.jsonl`, one line per rollout, keyed by the
-//! node's path and Θ's bits), so a plan killed and run again replays what it had: the search is
-//! deterministic, a recorded rollout is not simulated again, and only each scoop's chosen
-//! rollout is re-run for its final state.
+//! Every rollout goes through a [`Journal`], so a plan killed and run again replays what it
+//! had: the search is deterministic, a recorded rollout is not simulated again, and only each
+//! scoop's chosen rollout is re-run for its final state.
 
 use super::contact::entry_points;
+use super::journal::{key, node_seed, Entry, Journal};
 use super::search::{search, SearchOptions, Task};
 use crate::components::BodyState;
 use crate::math::geometry::CupRegion;
@@ -36,8 +36,6 @@ use crate::scene::{ControlSpec, LossSpec, Scene, TargetValue};
 use crate::sim::Simulation;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
-use std::io::Write;
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
@@ -76,15 +74,6 @@ pub struct DoseNode {
     /// The node's path from the start (`s` a scoop, `m<k>` a move to entry `k`): the journal's
     /// key.
     pub key: String,
-}
-
-/// One rollout as the journal keeps it.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-struct Entry {
-    key: String,
-    loss: f64,
-    delivered_g: f64,
-    particle_substeps: f64,
 }
 
 /// Which planner.
@@ -151,8 +140,7 @@ pub struct Dosing {
     /// the highest grain centre, half a spacing below the powder's top.
     surface_offset: f64,
     seed: u64,
-    journal: HashMap<String, Entry>,
-    journal_file: Option<std::fs::File>,
+    journal: Journal,
     pub rollouts: usize,
     pub particle_substeps: f64,
     pub replayed: usize,
@@ -164,6 +152,10 @@ pub struct Dosing {
 pub fn dosing_plan(scene: &Scene) -> anyhow::Result<DosingPlan> {
     match &scene.plan {
         Some(PlanSpec::Dosing(d)) => Ok(d.clone()),
+        Some(PlanSpec::Push(_)) => anyhow::bail!(
+            "{}: its plan pushes powder, not doses it",
+            scene.path.display()
+        ),
         None => anyhow::bail!(
             "{}: no `plan` section; add `plan: Some(Dosing((source: \"source_cup\", \
              spoon_capacity_g: 6.0)))` (scenes/multi_scoop_dosing.ron)",
@@ -194,24 +186,10 @@ impl Dosing {
             crate::math::sdf::Shape::Spoon { bowl_radius, .. } => bowl_radius,
             _ => 0.5 * scene.simulation.dx,
         };
-        let (mut journal, mut journal_file) = (HashMap::new(), None);
-        if let Some(path) = journal_path {
-            if let Ok(text) = std::fs::read_to_string(path) {
-                // A line cut short by a kill does not parse and is dropped.
-                for line in text.lines() {
-                    if let Ok(e) = serde_json::from_str::<Entry>(line) {
-                        journal.insert(e.key.clone(), e);
-                    }
-                }
-            }
-            journal_file = Some(
-                std::fs::OpenOptions::new()
-                    .create(true)
-                    .append(true)
-                    .open(path)
-                    .with_context(|| format!("opening the journal {}", path.display()))?,
-            );
-        }
+        let journal = match journal_path {
+            Some(p) => Journal::open(p)?,
+            None => Journal::default(),
+        };
         let state = sim.body_states();
         let masses = scene
             .prepare()?
@@ -230,7 +208,6 @@ impl Dosing {
             surface_offset: 0.0,
             seed,
             journal,
-            journal_file,
             rollouts: 0,
             particle_substeps: 0.0,
             replayed: 0,
@@ -419,43 +396,34 @@ impl Dosing {
     fn rollout(
         &mut self,
         p: &Problem,
-        key: &str,
+        node: &str,
         theta: [f64; 5],
     ) -> anyhow::Result<(f64, f64, Option<Vec<BodyState>>)> {
-        let bits: Vec<String> = theta
-            .iter()
-            .map(|t| format!("{:016x}", t.to_bits()))
-            .collect();
-        let full = format!("{key}|{}", bits.join(","));
+        let full = key(node, &theta);
         self.rollouts += 1;
         if let Some(e) = self.journal.get(&full) {
             self.particle_substeps += e.particle_substeps;
             self.replayed += 1;
-            let (l, d) = (e.loss, e.delivered_g);
+            let (l, d) = (e.loss, e.value);
             (self.progress)(self.rollouts, &format!("replayed: {d:.2} g"));
             return Ok((l, d, None));
         }
         let mut sim = p.simulation(theta, false)?;
         let steps = sim.horizon;
         sim.run(steps, |_| {})
-            .with_context(|| format!("scoop from node {key} at Θ = {theta:?}"))?;
+            .with_context(|| format!("scoop from node {node} at Θ = {theta:?}"))?;
         let states = sim.body_states();
         let xs: Vec<_> = states.iter().map(|b| b.x.clone()).collect();
         let loss = p.loss.eval(&xs).0;
         let delivered_g = self.mass_in(&states, &self.target);
         let work = (sim.particle_count() * steps * sim.params().substeps) as f64;
         self.particle_substeps += work;
-        let e = Entry {
-            key: full.clone(),
+        self.journal.put(Entry {
+            key: full,
             loss,
-            delivered_g,
+            value: delivered_g,
             particle_substeps: work,
-        };
-        if let Some(f) = &mut self.journal_file {
-            writeln!(f, "{}", serde_json::to_string(&e)?)?;
-            f.flush()?;
-        }
-        self.journal.insert(full, e);
+        })?;
         (self.progress)(self.rollouts, &format!("{delivered_g:.2} g"));
         Ok((loss, delivered_g, Some(states)))
     }
@@ -562,8 +530,7 @@ impl Dosing {
         consider(l, n.theta_hint, st);
         if budget > 1 {
             // The node's key seeds its optimiser, so a resumed plan draws the same samples.
-            let key = u64::from_str_radix(&crate::optim::fnv1a(&n.key), 16).expect("hex");
-            let seed = self.seed ^ key;
+            let seed = node_seed(self.seed, &n.key);
             let x0 = n.theta_hint.to_vec();
             let sigma = CmaConfig::default().sigma0;
             let mut evals = Vec::new();

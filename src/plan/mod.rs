@@ -5,5 +5,7 @@
 
 pub mod contact;
 pub mod dosing;
+pub mod journal;
 pub mod output;
+pub mod push;
 pub mod search;
