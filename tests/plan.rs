@@ -1,6 +1,7 @@
 //! `powderlab plan`: a malformed plan request is refused in one line naming the file and the
 //! field; a plan on a small scene writes its result and recording, and a rerun replays it from
-//! the journal to the same scoops without simulating its rollouts again.
+//! the journal to the same scoops without simulating its rollouts again; a push plan strokes
+//! the spatula and says how much powder reached the region.
 #![cfg(feature = "lab")]
 
 use std::path::{Path, PathBuf};
@@ -188,6 +189,89 @@ fn a_plan_is_written_and_a_rerun_replays_it() {
         assert_eq!(a["scoops"], b["scoops"]);
         assert_eq!(a["rollouts"], b["rollouts"]);
         assert_eq!(b["replayed"], b["rollouts"]);
+    }
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// The plate scene with its plan replaced.
+fn plate_with(dir: &Path, plan: &str) -> PathBuf {
+    let base = std::fs::read_to_string(common::scene_path("plate_push.ron")).unwrap();
+    let start = base.find("    plan: Some(Push(").unwrap();
+    let end = start + base[start..].find('\n').unwrap();
+    let text = format!("{}    plan: {plan},{}", &base[..start], &base[end..]);
+    let p = dir.join("plate.ron");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn a_malformed_push_request_gets_a_clear_error() {
+    let d = scratch("badpush");
+    for (plan, field) in [
+        (
+            r#"Some(Push((plate: "table", class: PushLeft, boundary: 0.06)))"#,
+            "plan.plate",
+        ),
+        (
+            r#"Some(Push((plate: "plate", class: PushLeft, boundary: 0.5)))"#,
+            "plan.boundary",
+        ),
+        (
+            r#"Some(Push((plate: "plate", class: PushUp, boundary: 0.06)))"#,
+            "PushUp",
+        ),
+        (
+            r#"Some(Push((plate: "plate", class: PullLeft, boundary: 0.06, success_fraction: 1.2)))"#,
+            "plan.success_fraction",
+        ),
+    ] {
+        let p = plate_with(&d, plan);
+        let err = refused(&[
+            p.to_str().unwrap(),
+            "--out",
+            d.join("out").to_str().unwrap(),
+        ]);
+        assert!(
+            err.contains("plate.ron") && err.contains(field),
+            "{field}: {err}"
+        );
+    }
+    assert!(!d.join("out").exists(), "nothing written");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn a_push_plan_moves_powder_into_the_region() {
+    let d = scratch("push");
+    let p = plate_with(
+        &d,
+        r#"Some(Push((plate: "plate", class: PullLeft, boundary: 0.06, stroke_budget: 2,
+            max_expansions: 2, max_strokes: 2)))"#,
+    );
+    let out = d.join("out");
+    let o = plan(&[
+        p.to_str().unwrap(),
+        "--method",
+        "scripted,astar",
+        "--json",
+        "--no-rrd",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rs: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    for r in &rs {
+        let strokes = r["strokes"].as_array().unwrap();
+        assert!(!strokes.is_empty(), "{r}");
+        // The powder starts 2.5 cm from the region: a stroke that moved none would be broken.
+        let last = strokes.last().unwrap()["in_region"].as_f64().unwrap();
+        assert!(last > 0.3, "{r}");
+        assert_eq!(r["in_region"].as_f64().unwrap(), last);
+        assert_eq!(r["success"].as_bool().unwrap(), last >= 0.9);
+        assert_eq!(r["class"], "PullLeft");
     }
     std::fs::remove_dir_all(&d).ok();
 }

@@ -1,16 +1,17 @@
-//! `powderlab plan SCENE`: a sequence of scoops to a dose larger than one spoonful, planned by
-//! A* over optimised scoops (or the greedy and scripted baselines), from the scene's `plan`
-//! section.
+//! `powderlab plan SCENE`: a sequence of scoops to a dose larger than one spoonful, or of
+//! spatula strokes that push or pull powder into a region, planned by A* over optimised actions
+//! (or the greedy and scripted baselines), from the scene's `plan` section.
 
 use anyhow::Result;
 use powderlab::plan::dosing::{dosing_plan, Method};
-use powderlab::plan::output::plan_into;
+use powderlab::plan::output::{plan_into, push_into};
+use powderlab::scene::plan::PlanSpec;
 use powderlab::scene::Scene;
 use std::path::PathBuf;
 
-/// Plan a multi-scoop dose: writes plan-METHOD.json (every scoop's entry point and Θ, the dose
-/// error, rollouts and wall time), plan-METHOD.rrd (the scoops one after another) and a
-/// journal that a rerun after a kill replays.
+/// Plan a multi-scoop dose or a push: writes plan-METHOD.json (every scoop's entry point and Θ
+/// or every stroke, the outcome, rollouts and wall time), plan-METHOD.rrd (the actions one
+/// after another) and a journal that a rerun after a kill replays.
 #[derive(clap::Args)]
 pub struct Args {
     /// A scene with a `plan` section (scenes/multi_scoop_dosing.ron).
@@ -35,6 +36,9 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let scene = Scene::load(&a.scene)?;
+    if let Some(PlanSpec::Push(p)) = &scene.plan {
+        return push(a, scene.clone(), p.clone());
+    }
     let plan = dosing_plan(&scene)?;
     let methods = a
         .method
@@ -102,6 +106,86 @@ pub fn run(a: Args) -> Result<()> {
                 s.added_g,
                 s.delivered_g,
                 s.discarded_g
+            );
+        }
+    }
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+/// The methods asked for, and the output folder.
+fn methods_and_out(a: &Args) -> Result<(Vec<Method>, PathBuf)> {
+    let methods = a
+        .method
+        .iter()
+        .map(|m| {
+            Method::parse(m)
+                .ok_or_else(|| anyhow::anyhow!("--method {m}: expected astar, greedy or scripted"))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let out = a.out.clone().unwrap_or_else(|| {
+        let stem = a.scene.file_stem().unwrap_or_default().to_string_lossy();
+        PathBuf::from("runs").join(stem.as_ref()).join("plan")
+    });
+    Ok((methods, out))
+}
+
+/// `plan` for a push plan.
+fn push(a: Args, scene: Scene, plan: powderlab::scene::plan::PushPlan) -> Result<()> {
+    let (methods, out) = methods_and_out(&a)?;
+    for method in methods {
+        let bound = match method {
+            Method::Astar => plan.max_expansions * plan.stroke_budget,
+            Method::Greedy => plan.max_strokes * plan.stroke_budget,
+            Method::Scripted => plan.max_strokes,
+        };
+        eprintln!(
+            "{}: {} ({}) with {} rollouts per stroke, at most {bound} rollouts",
+            a.scene.display(),
+            method.name(),
+            plan.class.name(),
+            plan.stroke_budget
+        );
+        let pb = super::bar(bound as u64, a.json);
+        let bar = pb.clone();
+        let r = push_into(
+            &out,
+            scene.clone(),
+            method,
+            a.seed,
+            !a.no_rrd,
+            Box::new(move |n, msg| {
+                bar.set_position(n as u64);
+                bar.set_message(msg.to_string());
+            }),
+        )?;
+        pb.finish_and_clear();
+        if a.json {
+            println!("{}", serde_json::to_string(&r)?);
+            continue;
+        }
+        println!(
+            "{}: {} in {} strokes, {:.1} % of the powder in the region (success from {:.0} %); {} rollouts ({} replayed), {:.1} s",
+            method.name(),
+            if r.success { "success" } else { "failure" },
+            r.strokes.len(),
+            100.0 * r.in_region,
+            100.0 * r.success_fraction,
+            r.rollouts,
+            r.replayed,
+            r.wall_s
+        );
+        for (i, d) in r.strokes.iter().enumerate() {
+            let s = &d.stroke;
+            println!(
+                "  stroke {}: lands at ({:.4}, {:.4}, {:.4}) m, yaw {:.1}°, {:.3} m long → {:.1} % in",
+                i + 1,
+                d.landing[0],
+                d.landing[1],
+                d.landing[2],
+                s.yaw_deg,
+                s.length,
+                100.0 * d.in_region
             );
         }
     }

@@ -500,8 +500,9 @@ fn demonstration_cmd(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// `powderlab study planning`: multi-scoop dosing over randomised instances, A* against
-/// greedy and scripted (`--seeds` instances, 10 by default).
+/// `powderlab study planning`: multi-scoop dosing and the four push/pull classes over
+/// randomised instances, A* against greedy and scripted (`--seeds` instances of each, 10 by
+/// default).
 fn planning_cmd(a: Args) -> Result<()> {
     use powderlab::plan::dosing::Method;
     use powderlab::study::planning;
@@ -523,7 +524,11 @@ fn planning_cmd(a: Args) -> Result<()> {
             .collect::<Result<_>>()?
     };
     let instances = planning::instances(a.seeds, 2026);
-    let pb = super::bar((instances.len() * methods.len()) as u64, a.json);
+    let pushes = planning::push_instances(a.seeds, 2027);
+    let pb = super::bar(
+        ((instances.len() + pushes.len()) * methods.len()) as u64,
+        a.json,
+    );
     let pb2 = pb.clone();
     let start = Instant::now();
     let rows = planning::run(
@@ -531,9 +536,20 @@ fn planning_cmd(a: Args) -> Result<()> {
         &a.out.join("planning"),
         &instances,
         &methods,
-        &move |k, m| {
+        &|k, m| {
             pb2.inc(1);
-            pb2.set_message(format!("instance {k}: {}", m.name()));
+            pb2.set_message(format!("dosing instance {k}: {}", m.name()));
+        },
+    )?;
+    let push_scene = powderlab::scene::Scene::load("scenes/plate_push.ron")?;
+    let push_rows = planning::run_push(
+        &push_scene,
+        &a.out.join("planning/push"),
+        &pushes,
+        &methods,
+        &|k, m| {
+            pb2.inc(1);
+            pb2.set_message(format!("push instance {k}: {}", m.name()));
         },
     )?;
     pb.finish_and_clear();
@@ -542,12 +558,8 @@ fn planning_cmd(a: Args) -> Result<()> {
         a.seeds,
         a.out.display()
     );
-    let md = planning::report(
-        &rows,
-        &command,
-        &powderlab::study::optimizers::machine(),
-        start.elapsed().as_secs_f64(),
-    );
+    let md = planning::report(&rows, &command, &powderlab::study::optimizers::machine())
+        + &planning::push_report(&push_rows);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("planning.md"), md.as_bytes())?;
     print_page(
@@ -555,7 +567,7 @@ fn planning_cmd(a: Args) -> Result<()> {
         &md,
         start,
         "planning.md",
-        json!({ "instances": rows.len() }),
+        json!({ "instances": rows.len(), "push_instances": push_rows.len() }),
     );
     Ok(())
 }

@@ -7,6 +7,7 @@
 //! again, and its wall time is that of the rest.
 
 use super::dosing::{DoseNode, Dosing, Method, PlanResult};
+use super::push::{Push, PushNode, PushResult};
 use crate::scene::Scene;
 use crate::util::write_atomic;
 use std::path::{Path, PathBuf};
@@ -46,16 +47,54 @@ pub fn plan_into(
     Ok(result)
 }
 
+/// [`plan_into`] for a push plan: `plan-METHOD.json` holds a [`PushResult`].
+pub fn push_into(
+    out: &Path,
+    scene: Scene,
+    method: Method,
+    seed: u64,
+    record: bool,
+    progress: Box<dyn FnMut(usize, &str) + Send>,
+) -> anyhow::Result<PushResult> {
+    std::fs::create_dir_all(out)?;
+    let journal = journal_path(out, &scene, seed);
+    let mut task = Push::new(scene, seed, Some(&journal))?;
+    task.progress = progress;
+    let (result, path) = task.run(method)?;
+    write_atomic(
+        &out.join(format!("plan-{}.json", method.name())),
+        serde_json::to_string_pretty(&result)?.as_bytes(),
+    )?;
+    if record {
+        let sims = path
+            .windows(2)
+            .filter_map(|pair| pair[1].stroke.as_ref().map(|d| (&pair[0], d.stroke)))
+            .map(|(n, st): (&PushNode, _)| task.stroke_simulation(n, &st));
+        record_sims(sims, &out.join(format!("plan-{}.rrd", method.name())))?;
+    }
+    Ok(result)
+}
+
 /// Records the scoops of `path` one after another (each simulated again from its node).
-#[cfg(feature = "rerun")]
 fn record_path(task: &Dosing, path: &[DoseNode], file: &Path) -> anyhow::Result<()> {
+    let sims = path
+        .windows(2)
+        .filter_map(|pair| pair[1].scoop.as_ref().map(|s| (&pair[0], s.theta)))
+        .map(|(n, theta)| task.scoop_simulation(n, theta));
+    record_sims(sims, file)
+}
+
+/// Records simulations one after another on one timeline, each from its first step to its
+/// horizon.
+#[cfg(feature = "rerun")]
+fn record_sims(
+    sims: impl Iterator<Item = anyhow::Result<crate::sim::Simulation>>,
+    file: &Path,
+) -> anyhow::Result<()> {
     let mut recorder: Option<crate::record::Recorder> = None;
     let mut offset = 0;
-    for pair in path.windows(2) {
-        let Some(scoop) = &pair[1].scoop else {
-            continue;
-        };
-        let mut sim = task.scoop_simulation(&pair[0], scoop.theta)?;
+    for sim in sims {
+        let mut sim = sim?;
         let r = match &mut recorder {
             Some(r) => r,
             None => recorder.insert(crate::record::Recorder::for_scene(
@@ -80,6 +119,9 @@ fn record_path(task: &Dosing, path: &[DoseNode], file: &Path) -> anyhow::Result<
 }
 
 #[cfg(not(feature = "rerun"))]
-fn record_path(_: &Dosing, _: &[DoseNode], _: &Path) -> anyhow::Result<()> {
+fn record_sims(
+    _: impl Iterator<Item = anyhow::Result<crate::sim::Simulation>>,
+    _: &Path,
+) -> anyhow::Result<()> {
     anyhow::bail!("a plan's recording needs the `rerun` feature")
 }

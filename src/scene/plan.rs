@@ -12,6 +12,120 @@ pub enum PlanSpec {
     /// Several scoops from `source` until the task's target cup holds the task's target mass
     /// (in grams) within `tolerance_g`.
     Dosing(DosingPlan),
+    /// Strokes of the scene's spatula until `success_fraction` of the powder lies on the
+    /// `plate` beyond `boundary` on the class's side (seed B's four something-something
+    /// classes).
+    Push(PushPlan),
+}
+
+/// Seed B's four classes: the side the powder goes to, and whether the robot pushes it away
+/// (the spatula's handle leans back, against the stroke) or pulls it toward itself (the
+/// handle leans ahead, along the stroke). Either way the blade lands on the far side of the
+/// powder from the region and strokes toward it.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq, Eq)]
+pub enum PushClass {
+    PushLeft,
+    PushRight,
+    PullLeft,
+    PullRight,
+}
+
+impl PushClass {
+    pub const ALL: [PushClass; 4] = [
+        PushClass::PushLeft,
+        PushClass::PushRight,
+        PushClass::PullLeft,
+        PushClass::PullRight,
+    ];
+    /// The region's side along x: −1 for left (toward −x), +1 for right.
+    pub fn side(self) -> f64 {
+        match self {
+            PushClass::PushLeft | PushClass::PullLeft => -1.0,
+            _ => 1.0,
+        }
+    }
+    pub fn pulls(self) -> bool {
+        matches!(self, PushClass::PullLeft | PushClass::PullRight)
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            PushClass::PushLeft => "push left",
+            PushClass::PushRight => "push right",
+            PushClass::PullLeft => "pull left",
+            PushClass::PullRight => "pull right",
+        }
+    }
+}
+
+/// Pushing or pulling powder into a region with a spatula: A* over optimised strokes.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PushPlan {
+    /// The plate the powder lies on (a Box container); the region is its part beyond
+    /// `boundary`.
+    pub plate: String,
+    pub class: PushClass,
+    /// The region's edge along x (m): the region is the plate's part at smaller x (left) or
+    /// larger x (right).
+    pub boundary: f64,
+    /// The share of the powder's mass that must lie in the region. Default 0.9.
+    #[serde(default = "default_success_fraction")]
+    pub success_fraction: f64,
+    /// A stroke that does not reach success must move at least this share into the region to
+    /// count. Default 0.05.
+    #[serde(default = "default_min_gain")]
+    pub min_gain: f64,
+    /// Forward rollouts the optimiser spends on one stroke. Default 6.
+    #[serde(default = "default_stroke_budget")]
+    pub stroke_budget: usize,
+    /// Nodes A* expands at most. Default 4.
+    #[serde(default = "default_push_expansions")]
+    pub max_expansions: usize,
+    /// Strokes a plan may take at most. Default 4.
+    #[serde(default = "default_max_strokes")]
+    pub max_strokes: usize,
+    /// Contacts `ContactLoc` proposes (bands of the powder still outside, across the stroke).
+    /// Default 2.
+    #[serde(default = "default_contacts")]
+    pub contacts: usize,
+    /// The handle's lean from the vertical (degrees). Default 20.
+    #[serde(default = "default_lean")]
+    pub lean_deg: f64,
+    /// The spatula's speed (m/s). Default 0.1.
+    #[serde(default = "default_speed")]
+    pub speed: f64,
+    /// Cost of moving the contact, in strokes. Default 0.1.
+    #[serde(default = "default_move_cost")]
+    pub move_cost: f64,
+    /// The chance that a node's contact is also relocated after a successful stroke. Default
+    /// 0.1.
+    #[serde(default = "default_explore")]
+    pub explore: f64,
+}
+
+fn default_success_fraction() -> f64 {
+    0.9
+}
+fn default_min_gain() -> f64 {
+    0.05
+}
+fn default_stroke_budget() -> usize {
+    6
+}
+fn default_push_expansions() -> usize {
+    4
+}
+fn default_max_strokes() -> usize {
+    4
+}
+fn default_contacts() -> usize {
+    2
+}
+fn default_lean() -> f64 {
+    20.0
+}
+fn default_speed() -> f64 {
+    0.1
 }
 
 /// Multi-scoop dosing: A* over scoops, each optimised from the powder the last one left.
@@ -87,6 +201,93 @@ fn default_move_cost() -> f64 {
 }
 fn default_explore() -> f64 {
     0.1
+}
+
+impl PushPlan {
+    /// The plate's box: its centre and half extents (world frame; the plate is not rotated).
+    pub fn plate_box(&self, scene: &Scene) -> Option<(glam::DVec3, glam::DVec3)> {
+        scene
+            .colliders
+            .iter()
+            .find(|c| c.name == self.plate)
+            .and_then(|c| match c.shape {
+                Shape::Box { half_extents } if c.rotation_deg == (0.0, 0.0, 0.0) => Some((
+                    glam::DVec3::from(c.position),
+                    glam::DVec3::from(half_extents),
+                )),
+                _ => None,
+            })
+    }
+
+    pub(super) fn validate(&self, scene: &Scene) -> Result<(), FieldError> {
+        let at = |f: &str| format!("plan.{f}");
+        let Some((c, h)) = self.plate_box(scene) else {
+            return Err(FieldError::new(
+                at("plate"),
+                format!("\"{}\"", self.plate),
+                "the name of an unrotated Box container the powder lies on",
+            ));
+        };
+        let tools: Vec<_> = scene
+            .colliders
+            .iter()
+            .filter(|c| matches!(c.shape, Shape::Spatula { .. }))
+            .collect();
+        if tools.len() != 1 || tools[0].kind != ColliderKindSpec::Tool {
+            return Err(FieldError::new(
+                "colliders",
+                format!("{} spatulas", tools.len()),
+                "exactly one Tool with a Spatula shape: the plan strokes it",
+            ));
+        }
+        if !(self.boundary > c.x - h.x && self.boundary < c.x + h.x) {
+            return Err(FieldError::new(
+                at("boundary"),
+                self.boundary.to_string(),
+                format!(
+                    "inside the plate's extent along x, ({}, {}) m",
+                    c.x - h.x,
+                    c.x + h.x
+                ),
+            ));
+        }
+        for (f, v) in [
+            ("success_fraction", self.success_fraction),
+            ("min_gain", self.min_gain),
+            ("explore", self.explore),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(FieldError::new(at(f), v.to_string(), "in [0, 1]"));
+            }
+        }
+        for (f, v) in [("lean_deg", self.lean_deg), ("move_cost", self.move_cost)] {
+            if !(v.is_finite() && (0.0..80.0).contains(&v)) {
+                return Err(FieldError::new(at(f), v.to_string(), "in [0, 80)"));
+            }
+        }
+        if !(self.speed.is_finite() && self.speed > 0.0 && self.speed <= 10.0) {
+            return Err(FieldError::new(
+                at("speed"),
+                self.speed.to_string(),
+                "in (0, 10] m/s",
+            ));
+        }
+        for (f, v) in [
+            ("stroke_budget", self.stroke_budget),
+            ("max_expansions", self.max_expansions),
+            ("max_strokes", self.max_strokes),
+            ("contacts", self.contacts),
+        ] {
+            if !(1..=MAX_PLAN_BUDGET).contains(&v) {
+                return Err(FieldError::new(
+                    at(f),
+                    v.to_string(),
+                    format!("a whole number from 1 to {MAX_PLAN_BUDGET}"),
+                ));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Most rollouts one scoop's optimiser may spend, and nodes a search may expand: beyond them a

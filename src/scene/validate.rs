@@ -339,8 +339,10 @@ impl Scene {
                 pos("record.point_radius", rad, rad > 0.0, "> 0 m")?;
             }
         }
-        if let Some(super::plan::PlanSpec::Dosing(d)) = &self.plan {
-            d.validate(self)?;
+        match &self.plan {
+            Some(super::plan::PlanSpec::Dosing(d)) => d.validate(self)?,
+            Some(super::plan::PlanSpec::Push(p)) => p.validate(self)?,
+            None => {}
         }
         // Behind the range checks above: any other field that is NaN or infinite (a rotation, a
         // loss target, a recording option) would reach the simulation as a silent NaN.
