@@ -30,7 +30,8 @@ pub struct Args {
     #[arg(long)]
     samples: Option<usize>,
     /// optimizers: the skill scenes to benchmark (comma separated; default the transport task
-    /// and the precise-dosing task).
+    /// and the precise-dosing task). planning: the plan scenes (default
+    /// scenes/multi_scoop_dosing.ron and scenes/plate_push.ron).
     #[arg(long, value_delimiter = ',')]
     tasks: Vec<PathBuf>,
     /// optimizers: paired seeds per task.
@@ -506,11 +507,24 @@ fn demonstration_cmd(a: Args) -> Result<()> {
 fn planning_cmd(a: Args) -> Result<()> {
     use powderlab::plan::dosing::Method;
     use powderlab::study::planning;
-    let scene_path = a
-        .scene
-        .clone()
-        .unwrap_or_else(|| PathBuf::from("scenes/multi_scoop_dosing.ron"));
-    let scene = powderlab::scene::Scene::load(&scene_path)?;
+    // The two tasks' scenes, or those `--tasks` names (a push plan or a dosing plan each).
+    let tasks = if a.tasks.is_empty() {
+        vec![
+            PathBuf::from("scenes/multi_scoop_dosing.ron"),
+            PathBuf::from("scenes/plate_push.ron"),
+        ]
+    } else {
+        a.tasks.clone()
+    };
+    let (mut dosing, mut push) = (None, None);
+    for t in &tasks {
+        let s = powderlab::scene::Scene::load(t)?;
+        match &s.plan {
+            Some(powderlab::scene::plan::PlanSpec::Dosing(_)) => dosing = Some(s),
+            Some(powderlab::scene::plan::PlanSpec::Push(_)) => push = Some(s),
+            None => bail!("--tasks {}: the scene has no `plan` section", t.display()),
+        }
+    }
     let methods: Vec<Method> = if a.method == ["all"] {
         vec![Method::Astar, Method::Greedy, Method::Scripted]
     } else {
@@ -523,35 +537,44 @@ fn planning_cmd(a: Args) -> Result<()> {
             })
             .collect::<Result<_>>()?
     };
-    let instances = planning::instances(a.seeds, 2026);
-    let pushes = planning::push_instances(a.seeds, 2027);
+    let instances = dosing
+        .as_ref()
+        .map_or(Vec::new(), |_| planning::instances(a.seeds, 2026));
+    let pushes = push
+        .as_ref()
+        .map_or(Vec::new(), |_| planning::push_instances(a.seeds, 2027));
     let pb = super::bar(
         ((instances.len() + pushes.len()) * methods.len()) as u64,
         a.json,
     );
     let pb2 = pb.clone();
     let start = Instant::now();
-    let rows = planning::run(
-        &scene,
-        &a.out.join("planning"),
-        &instances,
-        &methods,
-        &|k, m| {
-            pb2.inc(1);
-            pb2.set_message(format!("dosing instance {k}: {}", m.name()));
-        },
-    )?;
-    let push_scene = powderlab::scene::Scene::load("scenes/plate_push.ron")?;
-    let push_rows = planning::run_push(
-        &push_scene,
-        &a.out.join("planning/push"),
-        &pushes,
-        &methods,
-        &|k, m| {
-            pb2.inc(1);
-            pb2.set_message(format!("push instance {k}: {}", m.name()));
-        },
-    )?;
+    let rows = match &dosing {
+        Some(scene) => planning::run(
+            scene,
+            &a.out.join("planning"),
+            &instances,
+            &methods,
+            &|k, m| {
+                pb2.inc(1);
+                pb2.set_message(format!("dosing instance {k}: {}", m.name()));
+            },
+        )?,
+        None => Vec::new(),
+    };
+    let push_rows = match &push {
+        Some(scene) => planning::run_push(
+            scene,
+            &a.out.join("planning/push"),
+            &pushes,
+            &methods,
+            &|k, m| {
+                pb2.inc(1);
+                pb2.set_message(format!("push instance {k}: {}", m.name()));
+            },
+        )?,
+        None => Vec::new(),
+    };
     pb.finish_and_clear();
     let command = format!(
         "powderlab study planning --seeds {} --out {}",

@@ -24,7 +24,7 @@
 //! scoop's chosen rollout is re-run for its final state.
 
 use super::contact::entry_points;
-use super::journal::{key, node_seed, Entry, Journal};
+use super::journal::{key, node_seed, Entry, Journal, Progress};
 use super::search::{search, SearchOptions, Task};
 use crate::components::BodyState;
 use crate::math::geometry::CupRegion;
@@ -145,7 +145,7 @@ pub struct Dosing {
     pub particle_substeps: f64,
     pub replayed: usize,
     /// Called after every rollout with the rollouts so far and a message.
-    pub progress: Box<dyn FnMut(usize, &str) + Send>,
+    pub progress: Progress,
 }
 
 /// The dosing plan of a scene, or why it has none.

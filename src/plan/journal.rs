@@ -8,6 +8,9 @@ use std::collections::HashMap;
 use std::io::Write;
 use std::path::Path;
 
+/// Hears of every rollout of a plan: the rollouts so far and a message.
+pub type Progress = Box<dyn FnMut(usize, &str) + Send>;
+
 /// One rollout as the journal keeps it.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Entry {

@@ -7,6 +7,7 @@
 //! again, and its wall time is that of the rest.
 
 use super::dosing::{DoseNode, Dosing, Method, PlanResult};
+use super::journal::Progress;
 use super::push::{Push, PushNode, PushResult};
 use crate::scene::Scene;
 use crate::util::write_atomic;
@@ -26,7 +27,7 @@ pub fn plan_into(
     method: Method,
     seed: u64,
     record: bool,
-    progress: Box<dyn FnMut(usize, &str) + Send>,
+    progress: Progress,
 ) -> anyhow::Result<PlanResult> {
     std::fs::create_dir_all(out)?;
     let journal = journal_path(out, &scene, seed);
@@ -54,7 +55,7 @@ pub fn push_into(
     method: Method,
     seed: u64,
     record: bool,
-    progress: Box<dyn FnMut(usize, &str) + Send>,
+    progress: Progress,
 ) -> anyhow::Result<PushResult> {
     std::fs::create_dir_all(out)?;
     let journal = journal_path(out, &scene, seed);

@@ -22,7 +22,7 @@
 //!
 //! The rollouts go through a [`Journal`] as the dosing plan's do.
 
-use super::journal::{key, node_seed, Entry, Journal};
+use super::journal::{key, node_seed, Entry, Journal, Progress};
 use super::search::{search, SearchOptions, Task};
 use crate::components::BodyState;
 use crate::optim::cma::{reflect, run_sequential};
@@ -146,7 +146,7 @@ pub struct Push {
     pub rollouts: usize,
     pub particle_substeps: f64,
     pub replayed: usize,
-    pub progress: Box<dyn FnMut(usize, &str) + Send>,
+    pub progress: Progress,
 }
 
 /// The push plan of a scene, or why it has none.
