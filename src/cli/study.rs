@@ -1,3 +1,4 @@
+// Longer than 600 lines: one function per study, each reading its arguments, running its study and writing its page; they share the argument struct and the page helpers.
 //! `powderlab study`: error against run time, and time per substep against the problem size.
 //! Each configuration runs in a child process (this executable with `--config`), so that its
 //! peak memory is its own.

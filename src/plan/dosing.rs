@@ -23,12 +23,13 @@
 //! had: the search is deterministic, a recorded rollout is not simulated again, and only each
 //! scoop's chosen rollout is re-run for its final state.
 
-use super::contact::entry_points;
+use super::contact::{cup_surface, entry_points};
 use super::journal::{key, node_seed, Entry, Journal, Progress};
 use super::search::{search, SearchOptions, Task};
+pub use super::Method;
 use crate::components::BodyState;
 use crate::math::geometry::CupRegion;
-use crate::math::heightfield::{hard_heights, HeightGrid};
+use crate::math::heightfield::HeightGrid;
 use crate::optim::cma::{reflect, run_sequential, CmaConfig};
 use crate::optim::problem::Problem;
 use crate::scene::plan::{DosingPlan, PlanSpec};
@@ -74,33 +75,6 @@ pub struct DoseNode {
     /// The node's path from the start (`s` a scoop, `m<k>` a move to entry `k`): the journal's
     /// key.
     pub key: String,
-}
-
-/// Which planner.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// A* over optimised scoops (seed B's Algorithm 1).
-    Astar,
-    /// One optimised scoop after another at the highest entry, no search.
-    Greedy,
-    /// The scene's Θ repeated at the highest entry until the dose is reached.
-    Scripted,
-}
-
-impl Method {
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Astar => "astar",
-            Method::Greedy => "greedy",
-            Method::Scripted => "scripted",
-        }
-    }
-    pub fn parse(s: &str) -> Option<Method> {
-        [Method::Astar, Method::Greedy, Method::Scripted]
-            .into_iter()
-            .find(|m| m.name() == s)
-    }
 }
 
 /// What a plan gives.
@@ -267,73 +241,11 @@ impl Dosing {
         self.masses.clone()
     }
 
-    /// The source's surface over a pixel grid of one cell: the highest grain centre per pixel,
-    /// averaged over the pixels within the spoon's bowl radius that hold a grain (the floor
-    /// where none does), for every pixel within the cup; `NaN` outside it. A pixel of a cell
-    /// holds about four columns of grains at 8 per cell; at half a cell some pixels of a
-    /// disturbed surface hold none, and counting them at the floor's height put the surface
-    /// 6 mm low after one scoop, which sent the next scoop that much deeper.
+    /// The source's surface ([`cup_surface`]) on a pixel grid of one cell, averaged over the
+    /// spoon's bowl.
     fn surface_map(&self, state: &[BodyState]) -> (HeightGrid, Vec<f64>) {
-        let r = self.source.inner_radius;
-        let pixel = self.scene.simulation.dx;
-        let n = (2.0 * r / pixel).ceil() as usize + 1;
-        let c = self.source.pose.translation;
-        let grid = HeightGrid {
-            origin: [c.x - r, c.z - r],
-            pixel,
-            nx: n,
-            nz: n,
-        };
-        let floor = self
-            .source
-            .pose
-            .to_world(glam::DVec3::new(0.0, self.source.floor, 0.0))
-            .y;
-        let inside: Vec<glam::DVec3> = state
-            .iter()
-            .flat_map(|b| b.x.iter())
-            .filter(|x| self.source.inside(**x))
-            .copied()
-            .collect();
-        let hard = hard_heights(&grid, &inside, f64::NEG_INFINITY, 0.0);
-        let at = |k: usize| {
-            let (i, j) = (k % n, k / n);
-            let x = grid.origin[0] + i as f64 * pixel;
-            let z = grid.origin[1] + j as f64 * pixel;
-            (x, z, (x - c.x).hypot(z - c.z) <= r)
-        };
-        let reach = (self.bowl_radius / pixel).ceil() as isize;
-        let smooth = (0..grid.len())
-            .map(|k| {
-                let (x, z, inside) = at(k);
-                if !inside {
-                    return f64::NAN;
-                }
-                let (i, j) = ((k % n) as isize, (k / n) as isize);
-                let (mut sum, mut count) = (0.0, 0.0);
-                for dj in -reach..=reach {
-                    for di in -reach..=reach {
-                        let (a, b) = (i + di, j + dj);
-                        if a < 0 || b < 0 || a >= n as isize || b >= n as isize {
-                            continue;
-                        }
-                        let q = b as usize * n + a as usize;
-                        let (qx, qz, q_in) = at(q);
-                        if q_in && hard[q].is_finite() && (qx - x).hypot(qz - z) <= self.bowl_radius
-                        {
-                            sum += hard[q];
-                            count += 1.0;
-                        }
-                    }
-                }
-                if count > 0.0 {
-                    sum / count
-                } else {
-                    floor
-                }
-            })
-            .collect();
-        (grid, smooth)
+        let xs = state.iter().flat_map(|b| b.x.iter()).copied();
+        cup_surface(&self.source, xs, self.scene.simulation.dx, self.bowl_radius)
     }
 
     /// The averaged surface at the pixel nearest `entry`.
