@@ -244,7 +244,21 @@ pub fn report(rows: &[Row], command: &str, machine: &str) -> String {
         );
     }
     if let Some(a) = methods.iter().position(|m| *m == Method::Astar) {
-        let _ = writeln!(md);
+        let wins = |m: usize| rows.iter().filter(|r| r.plans[m].success).count();
+        let best_other = (0..methods.len())
+            .filter(|&b| b != a)
+            .map(wins)
+            .max()
+            .unwrap_or(0);
+        let met = wins(a) >= best_other && 10 * wins(a) >= 8 * n;
+        let _ = writeln!(
+            md,
+            "\n**The issue's target (A\\* succeeds at least as often as either baseline, and at \
+             least 80 % of the time): {}.** A\\* succeeded on {} of {n}, the better baseline \
+             on {best_other}.\n",
+            if met { "met" } else { "missed" },
+            wins(a)
+        );
         for (b, other) in methods.iter().enumerate().filter(|(b, _)| *b != a) {
             let ea = column(a, &|p| p.dose_error_g);
             let eb = column(b, &|p| p.dose_error_g);
@@ -439,8 +453,9 @@ pub fn push_report(rows: &[PushRow]) -> String {
         "Scene: `scenes/plate_push.ron`: a patch of powder {PATCH_HEIGHT_MM} mm high on a plate, \
          a spatula with a blade 40 mm wide. {per_class} layouts, each set in the four classes \
          (the right classes mirrored about the plate's middle): the patch's centre x in \
-         [{}, {}] mm and z in [{}, {}] mm, its size {}–{} mm along the stroke and {}–{} mm \
-         across it (wider than the blade from 40 mm on), the region's boundary {}–{} mm from \
+         [{:.0}, {:.0}] mm and z in [{:.0}, {:.0}] mm, its size {:.0}–{:.0} mm along the stroke \
+         and {:.0}–{:.0} mm across it (wider than the blade from 40 mm on), the region's \
+         boundary {:.0}–{:.0} mm from \
          the plate's left edge for the left classes. Success is at least {:.0} % of the mass \
          in the region. Each stroke's optimiser is CMA-ES from the scripted stroke; scripted \
          is that straight stroke through the middle of the powder still outside, repeated.\n",
