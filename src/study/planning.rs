@@ -194,8 +194,8 @@ pub fn report(rows: &[Row], command: &str, machine: &str) -> String {
     let tol = first.plans[0].tolerance_g;
     let _ = writeln!(
         md,
-        "Scene: `scenes/multi_scoop_dosing.ron` (the default transport scene, its spoon carrying \
-         at most about 5 g a scoop). {n} instances, each drawing a target mass in [{}, {}] g \
+        "Scene: `scenes/multi_scoop_dosing.ron` (the default transport scene's spoon and cups; \
+         the largest scoop of each method is in the table). {n} instances, each drawing a target mass in [{}, {}] g \
          (rounded to 0.1 g), a fill height in [{}, {}] mm and a friction angle in [{}, {}]°. \
          Success is a dose within ±{tol} g. Each scoop's optimiser (`OptWrench`) is CMA-ES \
          with the plan's budget of forward rollouts, the first at the previous scoop's Θ; \
@@ -259,6 +259,26 @@ pub fn report(rows: &[Row], command: &str, machine: &str) -> String {
             if met { "met" } else { "missed" },
             wins(a)
         );
+        let failures: Vec<String> = rows
+            .iter()
+            .filter(|r| !r.plans[a].success)
+            .map(|r| {
+                let p = &r.plans[a];
+                format!(
+                    "instance {} ({:.3} g of {:.1} g after {} expansions)",
+                    r.instance.index, p.delivered_g, p.target_g, p.expansions
+                )
+            })
+            .collect();
+        if !failures.is_empty() {
+            let _ = writeln!(
+                md,
+                "A\\*'s failures: {}. A search ends when its expansions reach the plan's \
+                 `max_expansions` or when no node is left to expand (a relocated node whose \
+                 scoop fails is not relocated again).\n",
+                failures.join("; ")
+            );
+        }
         for (b, other) in methods.iter().enumerate().filter(|(b, _)| *b != a) {
             let ea = column(a, &|p| p.dose_error_g);
             let eb = column(b, &|p| p.dose_error_g);
