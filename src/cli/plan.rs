@@ -65,18 +65,7 @@ pub fn run(a: Args) -> Result<()> {
             plan.scoop_budget
         );
         let pb = super::bar(bound as u64, a.json);
-        let bar = pb.clone();
-        let r = plan_into(
-            &out,
-            scene.clone(),
-            method,
-            a.seed,
-            !a.no_rrd,
-            Box::new(move |n, msg| {
-                bar.set_position(n as u64);
-                bar.set_message(msg.to_string());
-            }),
-        )?;
+        let r = plan_into(&out, scene.clone(), method, a.seed, !a.no_rrd, follow(&pb))?;
         pb.finish_and_clear();
         if a.json {
             println!("{}", serde_json::to_string(&r)?);
@@ -147,18 +136,7 @@ fn push(a: Args, scene: Scene, plan: powderlab::scene::plan::PushPlan) -> Result
             plan.stroke_budget
         );
         let pb = super::bar(bound as u64, a.json);
-        let bar = pb.clone();
-        let r = push_into(
-            &out,
-            scene.clone(),
-            method,
-            a.seed,
-            !a.no_rrd,
-            Box::new(move |n, msg| {
-                bar.set_position(n as u64);
-                bar.set_message(msg.to_string());
-            }),
-        )?;
+        let r = push_into(&out, scene.clone(), method, a.seed, !a.no_rrd, follow(&pb))?;
         pb.finish_and_clear();
         if a.json {
             println!("{}", serde_json::to_string(&r)?);
@@ -191,4 +169,13 @@ fn push(a: Args, scene: Scene, plan: powderlab::scene::plan::PushPlan) -> Result
     }
     eprintln!("wrote {}", out.display());
     Ok(())
+}
+
+/// A plan's progress shown on `pb`: the rollouts so far and the last rollout's outcome.
+fn follow(pb: &indicatif::ProgressBar) -> powderlab::plan::journal::Progress {
+    let bar = pb.clone();
+    Box::new(move |n, msg| {
+        bar.set_position(n as u64);
+        bar.set_message(msg.to_string());
+    })
 }

@@ -268,19 +268,25 @@ impl Push {
         })
     }
 
+    /// The x of the far side, from the region, of the powder still outside it (the boundary
+    /// when none is).
+    fn trailing_edge(&self, state: &[BodyState]) -> f64 {
+        let s = self.plan.class.side();
+        let far = self
+            .outside(state)
+            .map(|x| -s * x.x)
+            .fold(f64::NEG_INFINITY, f64::max);
+        if far.is_finite() {
+            -s * far
+        } else {
+            self.plan.boundary
+        }
+    }
+
     /// The landing point, the pose and the per-step controls of a stroke from `n`.
     fn motion(&self, n: &PushNode, st: &Stroke) -> ([f64; 3], DQuat, Vec<[f64; 6]>) {
         let s = self.plan.class.side();
-        // The far side of the powder still outside, from the region.
-        let trailing = self
-            .outside(&n.state)
-            .map(|x| -s * x.x)
-            .fold(f64::NEG_INFINITY, f64::max);
-        let trailing = if trailing.is_finite() {
-            -s * trailing
-        } else {
-            self.plan.boundary
-        };
+        let trailing = self.trailing_edge(&n.state);
         let yaw = st.yaw_deg.to_radians();
         let d = DVec3::new(s * yaw.cos(), 0.0, yaw.sin());
         let landing = DVec3::new(
@@ -410,15 +416,7 @@ impl Push {
     /// outside, landing 1 cm behind it, 1 mm above the plate, ending 1 cm inside the region.
     pub fn scripted(&self, n: &PushNode) -> Stroke {
         let s = self.plan.class.side();
-        let trailing = self
-            .outside(&n.state)
-            .map(|x| -s * x.x)
-            .fold(f64::NEG_INFINITY, f64::max);
-        let trailing = if trailing.is_finite() {
-            -s * trailing
-        } else {
-            self.plan.boundary
-        };
+        let trailing = self.trailing_edge(&n.state);
         let behind = 0.01;
         let landing = trailing - s * behind;
         Stroke {
