@@ -183,7 +183,8 @@ pub fn report(rows: &[Row], command: &str, machine: &str) -> String {
     let wall: f64 = rows.iter().flat_map(|r| &r.plans).map(|p| p.wall_s).sum();
     let _ = writeln!(
         md,
-        "Machine: {machine}. The dosing plans took {:.0} s of wall time in all.\n",
+        "Machine: {machine}. The dosing plans' recorded wall times sum to {:.0} s (a plan \
+         resumed from its journal records its last run's time only).\n",
         wall
     );
     let _ = writeln!(md, "## Multi-scoop dosing\n");
@@ -467,7 +468,11 @@ pub fn push_report(rows: &[PushRow]) -> String {
         .count();
     let wall: f64 = rows.iter().flat_map(|r| &r.plans).map(|p| p.wall_s).sum();
     let _ = writeln!(md, "\n## Pushing and pulling powder (seed B's figure 3)\n");
-    let _ = writeln!(md, "The push plans took {wall:.0} s of wall time in all.\n");
+    let _ = writeln!(
+        md,
+        "The push plans' recorded wall times sum to {wall:.0} s (a resumed plan records its \
+         last run's time only).\n"
+    );
     let _ = writeln!(
         md,
         "Scene: `scenes/plate_push.ron`: a patch of powder {PATCH_HEIGHT_MM} mm high on a plate, \
