@@ -541,9 +541,9 @@ fn planning_cmd(a: Args) -> Result<()> {
     let instances = dosing
         .as_ref()
         .map_or(Vec::new(), |_| planning::instances(a.seeds, 2026));
-    let pushes = push
-        .as_ref()
-        .map_or(Vec::new(), |_| planning::push_instances(a.seeds, 2027));
+    let pushes = push.as_ref().map_or(Vec::new(), |_| {
+        powderlab::study::push::push_instances(a.seeds, 2027)
+    });
     let pb = super::bar(
         ((instances.len() + pushes.len()) * methods.len()) as u64,
         a.json,
@@ -564,7 +564,7 @@ fn planning_cmd(a: Args) -> Result<()> {
         None => Vec::new(),
     };
     let push_rows = match &push {
-        Some(scene) => planning::run_push(
+        Some(scene) => powderlab::study::push::run_push(
             scene,
             &a.out.join("planning/push"),
             &pushes,
@@ -583,7 +583,7 @@ fn planning_cmd(a: Args) -> Result<()> {
         a.out.display()
     );
     let md = planning::report(&rows, &command, &powderlab::study::optimizers::machine())
-        + &planning::push_report(&push_rows);
+        + &powderlab::study::push::push_report(&push_rows);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("planning.md"), md.as_bytes())?;
     print_page(
