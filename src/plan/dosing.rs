@@ -228,17 +228,11 @@ impl Dosing {
 
     /// Grams of the particles inside `cup`.
     fn mass_in(&self, state: &[BodyState], cup: &CupRegion) -> f64 {
-        let masses = self.particle_masses();
         state
             .iter()
-            .zip(&masses)
+            .zip(&self.masses)
             .map(|(b, m)| b.x.iter().filter(|x| cup.inside(**x)).count() as f64 * m * 1e3)
             .sum()
-    }
-
-    /// Each body's particle mass (kg).
-    fn particle_masses(&self) -> Vec<f64> {
-        self.masses.clone()
     }
 
     /// The source's surface ([`cup_surface`]) on a pixel grid of one cell, averaged over the
@@ -361,10 +355,9 @@ impl Dosing {
         };
         let before = self.mass_in(&states, &self.target) + self.mass_in(&states, &self.source);
         let total: f64 = {
-            let m = self.particle_masses();
             states
                 .iter()
-                .zip(&m)
+                .zip(&self.masses)
                 .map(|(b, m)| b.x.len() as f64 * m * 1e3)
                 .sum()
         };

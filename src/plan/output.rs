@@ -19,6 +19,11 @@ pub fn journal_path(out: &Path, scene: &Scene, seed: u64) -> PathBuf {
     out.join(format!("journal-{fp}.jsonl"))
 }
 
+/// The file of `method`'s plan in `out` with extension `ext` (`json` or `rrd`).
+pub fn plan_file(out: &Path, method: Method, ext: &str) -> PathBuf {
+    out.join(format!("plan-{}.{ext}", method.name()))
+}
+
 /// Plans `scene` with `method` into `out`: `plan.json`, the journal and, with `record`,
 /// `plan.rrd`. `progress` hears of every rollout (rollouts so far, a message).
 pub fn plan_into(
@@ -35,15 +40,11 @@ pub fn plan_into(
     task.progress = progress;
     let (result, path) = task.run(method)?;
     write_atomic(
-        &out.join(format!("plan-{}.json", method.name())),
+        &plan_file(out, method, "json"),
         serde_json::to_string_pretty(&result)?.as_bytes(),
     )?;
     if record {
-        record_path(
-            &task,
-            &path,
-            &out.join(format!("plan-{}.rrd", method.name())),
-        )?;
+        record_path(&task, &path, &plan_file(out, method, "rrd"))?;
     }
     Ok(result)
 }
@@ -63,7 +64,7 @@ pub fn push_into(
     task.progress = progress;
     let (result, path) = task.run(method)?;
     write_atomic(
-        &out.join(format!("plan-{}.json", method.name())),
+        &plan_file(out, method, "json"),
         serde_json::to_string_pretty(&result)?.as_bytes(),
     )?;
     if record {
@@ -71,7 +72,7 @@ pub fn push_into(
             .windows(2)
             .filter_map(|pair| pair[1].stroke.as_ref().map(|d| (&pair[0], d.stroke)))
             .map(|(n, st): (&PushNode, _)| task.stroke_simulation(n, &st));
-        record_sims(sims, &out.join(format!("plan-{}.rrd", method.name())))?;
+        record_sims(sims, &plan_file(out, method, "rrd"))?;
     }
     Ok(result)
 }

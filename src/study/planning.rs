@@ -8,7 +8,7 @@
 use super::optimizers::wilcoxon_less;
 use crate::materials::drucker_prager::DruckerPrager;
 use crate::plan::dosing::{Method, PlanResult};
-use crate::plan::output::plan_into;
+use crate::plan::output::{plan_file, plan_into};
 use crate::scene::plan::PlanSpec;
 use crate::scene::{ControlSpec, Fill, LossSpec, Scene, TargetValue};
 use crate::util::SplitMix64;
@@ -111,21 +111,16 @@ pub fn run(
         let mut plans = Vec::new();
         for &m in methods {
             progress(inst.index, m);
-            let file = out.join(format!("plan-{}.json", m.name()));
-            let done: Option<PlanResult> = std::fs::read_to_string(&file)
-                .ok()
-                .and_then(|t| serde_json::from_str(&t).ok());
-            let r = match done {
-                Some(r) => r,
-                None => plan_into(
+            let r = kept_or(&out, m, || {
+                plan_into(
                     &out,
                     scene.clone(),
                     m,
                     inst.index as u64,
                     false,
                     Box::new(|_, _| {}),
-                )?,
-            };
+                )
+            })?;
             plans.push(r);
         }
         rows.push(Row {
@@ -134,6 +129,22 @@ pub fn run(
         });
     }
     Ok(rows)
+}
+
+/// The plan of `method` kept in `out` from an earlier run, or `plan()`'s new one: a killed
+/// study resumes at the first plan it had not written.
+pub fn kept_or<R: serde::de::DeserializeOwned>(
+    out: &Path,
+    method: Method,
+    plan: impl FnOnce() -> anyhow::Result<R>,
+) -> anyhow::Result<R> {
+    let kept = std::fs::read_to_string(plan_file(out, method, "json"))
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    match kept {
+        Some(r) => Ok(r),
+        None => plan(),
+    }
 }
 
 fn mean_std(v: &[f64]) -> (f64, f64) {

@@ -1,7 +1,7 @@
 //! The push half of `study planning`: seed B's four classes over randomised layouts on
 //! `scenes/plate_push.ron`, A* against greedy and scripted (docs/results/planning.md).
 
-use super::planning::sign_test;
+use super::planning::{kept_or, sign_test};
 use crate::plan::output::push_into;
 use crate::plan::push::PushResult;
 use crate::plan::Method;
@@ -111,21 +111,16 @@ pub fn run_push(
         let mut plans = Vec::new();
         for &m in methods {
             progress(k, m);
-            let file = out.join(format!("plan-{}.json", m.name()));
-            let done: Option<PushResult> = std::fs::read_to_string(&file)
-                .ok()
-                .and_then(|t| serde_json::from_str(&t).ok());
-            let r = match done {
-                Some(r) => r,
-                None => push_into(
+            let r = kept_or(&out, m, || {
+                push_into(
                     &out,
                     scene.clone(),
                     m,
                     inst.index as u64,
                     false,
                     Box::new(|_, _| {}),
-                )?,
-            };
+                )
+            })?;
             plans.push(r);
         }
         rows.push(PushRow {
