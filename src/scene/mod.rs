@@ -19,6 +19,7 @@ pub mod fuzz;
 pub mod parse;
 pub mod plan;
 pub mod prepare;
+pub mod randomize;
 pub mod types;
 pub mod validate;
 pub mod work;

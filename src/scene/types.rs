@@ -317,6 +317,9 @@ pub struct Scene {
     /// What `powderlab plan` searches for; other commands ignore it.
     #[serde(default)]
     pub plan: Option<super::plan::PlanSpec>,
+    /// The ranges `powderlab policy` draws scenes from; other commands ignore it.
+    #[serde(default)]
+    pub randomize: Option<super::randomize::Randomization>,
     /// Where the scene came from (for messages).
     #[serde(skip)]
     pub path: PathBuf,

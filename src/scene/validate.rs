@@ -344,6 +344,9 @@ impl Scene {
             Some(super::plan::PlanSpec::Push(p)) => p.validate(self)?,
             None => {}
         }
+        if let Some(r) = &self.randomize {
+            r.validate(self)?;
+        }
         // Behind the range checks above: any other field that is NaN or infinite (a rotation, a
         // loss target, a recording option) would reach the simulation as a silent NaN.
         if let Some((field, v)) = crate::nonfinite::first_nonfinite(self) {
