@@ -44,6 +44,7 @@
 pub mod cma;
 pub mod hybrid;
 pub mod journal;
+pub mod mlp;
 pub mod plot;
 pub mod problem;
 pub mod refine;

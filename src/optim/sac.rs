@@ -27,6 +27,7 @@
 //! [`SplitMix64`], and the networks are small enough that candle's matrix products run on one
 //! thread, so a seed fixes the run.
 
+use super::mlp::Mlp;
 use crate::util::SplitMix64;
 use candle_core::{DType, Device, Result, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW};
@@ -73,51 +74,6 @@ const LOG_STD_MAX: f64 = 1.0;
 /// `ln(1 − tanh²u + SQUASH_EPS)`: keeps the squashing correction finite at `|Θ| → 1`.
 const SQUASH_EPS: f64 = 1e-6;
 const TARGET_ENTROPY: f64 = -(DIM as f64);
-
-/// A multilayer perceptron with ReLU between layers.
-struct Mlp {
-    /// (weight `[out, in]`, bias `[out]`) per layer.
-    layers: Vec<(Var, Var)>,
-}
-
-impl Mlp {
-    /// PyTorch's default initialisation: weights and biases uniform in `±1/√fan_in`.
-    fn new(sizes: &[usize], rng: &mut SplitMix64, dev: &Device) -> Result<Mlp> {
-        let mut layers = Vec::new();
-        for w in sizes.windows(2) {
-            let (i, o) = (w[0], w[1]);
-            let bound = 1.0 / (i as f64).sqrt();
-            let wv: Vec<f64> = (0..i * o).map(|_| rng.uniform_in(-bound, bound)).collect();
-            let bv: Vec<f64> = (0..o).map(|_| rng.uniform_in(-bound, bound)).collect();
-            layers.push((
-                Var::from_tensor(&Tensor::from_vec(wv, (o, i), dev)?)?,
-                Var::from_tensor(&Tensor::from_vec(bv, o, dev)?)?,
-            ));
-        }
-        Ok(Mlp { layers })
-    }
-
-    fn forward(&self, x: &Tensor) -> Result<Tensor> {
-        let mut x = x.clone();
-        let n = self.layers.len();
-        for (k, (w, b)) in self.layers.iter().enumerate() {
-            x = x
-                .matmul(&w.as_tensor().t()?)?
-                .broadcast_add(b.as_tensor())?;
-            if k + 1 < n {
-                x = x.relu()?;
-            }
-        }
-        Ok(x)
-    }
-
-    fn vars(&self) -> Vec<Var> {
-        self.layers
-            .iter()
-            .flat_map(|(w, b)| [w.clone(), b.clone()])
-            .collect()
-    }
-}
 
 /// One SAC agent (one seed).
 pub struct Sac {
