@@ -56,6 +56,8 @@ pub mod optim;
 pub mod plan;
 pub mod plugin;
 pub mod ply;
+#[cfg(feature = "lab")]
+pub mod policy;
 #[cfg(feature = "rerun")]
 pub mod record;
 #[cfg(feature = "lab")]

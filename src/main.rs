@@ -49,6 +49,9 @@ enum Command {
     /// or the greedy and scripted baselines; writes plan-METHOD.json and plan-METHOD.rrd.
     #[cfg(feature = "lab")]
     Plan(cli::plan::Args),
+    /// A skill policy over randomised scenes: `dataset`, `train`, `finetune`, `eval`, `apply`.
+    #[cfg(feature = "lab")]
+    Policy(cli::policy::Args),
     /// Check against exact solutions and published experiments (the quick set without a case).
     #[cfg(feature = "lab")]
     Validate(cli::validate::Args),
@@ -76,6 +79,8 @@ fn main() {
         Command::Optimize(a) => cli::optimize::run(a),
         #[cfg(feature = "lab")]
         Command::Plan(a) => cli::plan::run(a),
+        #[cfg(feature = "lab")]
+        Command::Policy(a) => cli::policy::run(a),
         #[cfg(feature = "lab")]
         Command::Validate(a) => cli::validate::run(a),
         #[cfg(feature = "lab")]

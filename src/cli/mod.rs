@@ -14,6 +14,8 @@ pub mod optimize;
 #[cfg(feature = "lab")]
 pub mod plan;
 #[cfg(feature = "lab")]
+pub mod policy;
+#[cfg(feature = "lab")]
 pub mod render;
 pub mod simulate;
 #[cfg(feature = "lab")]

@@ -79,6 +79,16 @@ impl Problem {
         Ok(self)
     }
 
+    /// The powder's particle positions before the first step, over every body.
+    pub fn initial_positions(&self) -> Vec<glam::DVec3> {
+        self.build
+            .prepared
+            .bodies
+            .iter()
+            .flat_map(|b| b.x.iter().copied())
+            .collect()
+    }
+
     /// The Θ written in the scene.
     pub fn scene_theta(&self) -> [f64; 5] {
         match &self.scene.colliders[self.tool].control {

@@ -1,0 +1,339 @@
+//! `powderlab policy`: a skill policy over randomised scenes (seed B's Sim2Real step). `dataset`
+//! optimises randomised scenes, `train` fits the network, `finetune` improves it with
+//! REINFORCE, `eval` compares it on held-out scenes, `apply` gives one scene's Θ.
+
+use anyhow::Result;
+use powderlab::policy::dataset::{self, Config};
+use powderlab::policy::eval::{self, Candidate, EvalConfig};
+use powderlab::policy::features::layout;
+use powderlab::policy::net::{self, Policy, TrainConfig};
+use powderlab::policy::reinforce::ReinforceConfig;
+use powderlab::policy::tune;
+use powderlab::scene::Scene;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    command: Sub,
+}
+
+#[derive(clap::Subcommand)]
+enum Sub {
+    /// Draw randomised scenes from the scene's `randomize` ranges, optimise Θ on each
+    /// (CMA-ES), add perturbed copies refined by Gauss–Newton steps along the adjoint
+    /// gradient, and write DIR/dataset.safetensors. Resumes after a kill.
+    Dataset(DatasetArgs),
+    /// Fit the MLP from features to Θ on DIR/dataset.safetensors (candle, full-batch AdamW);
+    /// writes DIR/policy.safetensors and DIR/train.csv.
+    Train(TrainArgs),
+    /// Fine-tune DIR/policy.safetensors with REINFORCE on the dataset's scenes (reward −L);
+    /// writes DIR/finetuned.safetensors and DIR/finetune.csv. Resumes after a kill.
+    Finetune(FinetuneArgs),
+    /// Compare the policy (and the fine-tuned one, if there is one) with a random Θ, the
+    /// per-scene optimiser and the optimiser warm-started from the policy, on held-out
+    /// randomised scenes; writes DIR/eval.md. Resumes after a kill.
+    Eval(EvalArgs),
+    /// Print the policy's Θ for a scene (its own values, not a random draw); --write writes
+    /// the scene with that Θ.
+    Apply(ApplyArgs),
+}
+
+#[derive(clap::Args)]
+struct TrainArgs {
+    #[arg(long, default_value = "runs/policy")]
+    dir: PathBuf,
+    /// Full-batch AdamW steps.
+    #[arg(long, default_value_t = 3000)]
+    epochs: usize,
+    /// Units in each of the two hidden layers.
+    #[arg(long, default_value_t = 64)]
+    hidden: usize,
+}
+
+#[derive(clap::Args)]
+struct FinetuneArgs {
+    /// The scene the dataset was made from.
+    scene: PathBuf,
+    #[arg(long, default_value = "runs/policy")]
+    dir: PathBuf,
+    #[arg(long, default_value_t = 12)]
+    iterations: usize,
+    /// Episodes (rollouts) per iteration.
+    #[arg(long, default_value_t = 8)]
+    batch: usize,
+    /// The Gaussian's standard deviation in Θ.
+    #[arg(long, default_value_t = 0.1)]
+    sigma: f64,
+    #[arg(long, default_value_t = 1e-3)]
+    lr: f64,
+}
+
+#[derive(clap::Args)]
+struct EvalArgs {
+    /// The scene the dataset was made from.
+    scene: PathBuf,
+    #[arg(long, default_value = "runs/policy")]
+    dir: PathBuf,
+    /// Held-out randomised scenes.
+    #[arg(long, default_value_t = 20)]
+    scenes: usize,
+    /// The per-scene optimiser's full budget (forward rollouts).
+    #[arg(long, default_value_t = 30)]
+    budget: usize,
+    /// The dataset's seed (the held-out scenes come from a stream derived from it).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+#[derive(clap::Args)]
+struct ApplyArgs {
+    /// A scene whose features match the policy's (a skill scene with a `randomize` section).
+    scene: PathBuf,
+    /// The policy file.
+    #[arg(long, default_value = "runs/policy/policy.safetensors")]
+    policy: PathBuf,
+    /// Write the scene with the policy's Θ here (RON).
+    #[arg(long)]
+    write: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+struct DatasetArgs {
+    /// A scene with a `randomize` section (scenes/policy_dosing.ron).
+    scene: PathBuf,
+    /// The policy's folder.
+    #[arg(long, default_value = "runs/policy")]
+    dir: PathBuf,
+    /// Randomised scenes to optimise.
+    #[arg(long, default_value_t = 36)]
+    scenes: usize,
+    /// Forward rollouts CMA-ES spends on each scene.
+    #[arg(long, default_value_t = 20)]
+    budget: usize,
+    /// Perturbed copies of each scene (seed B's augmentation).
+    #[arg(long, default_value_t = 2)]
+    augment: usize,
+    /// Gradient steps on each perturbed copy.
+    #[arg(long, default_value_t = 1)]
+    augment_steps: usize,
+    /// The perturbation's standard deviation, as a share of each range's width.
+    #[arg(long, default_value_t = 0.1)]
+    perturb: f64,
+    /// The stream the scenes are drawn from.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    match a.command {
+        Sub::Dataset(d) => dataset_cmd(d),
+        Sub::Train(t) => train_cmd(t),
+        Sub::Finetune(f) => finetune_cmd(f),
+        Sub::Eval(e) => eval_cmd(e),
+        Sub::Apply(a) => apply_cmd(a),
+    }
+}
+
+/// The settings of a dataset of `scene`.
+fn dataset_config(scene: &Scene, d: &DatasetArgs) -> Config {
+    Config {
+        scene_hash: powderlab::optim::fnv1a(&scene.source),
+        scenes: d.scenes,
+        budget: d.budget,
+        augment: d.augment,
+        augment_steps: d.augment_steps,
+        perturb: d.perturb,
+        seed: d.seed,
+    }
+}
+
+fn dataset_cmd(d: DatasetArgs) -> Result<()> {
+    let scene = Scene::load(&d.scene)?;
+    dataset::spec_of(&scene)?;
+    let cfg = dataset_config(&scene, &d);
+    let per_scene = d.budget as f64
+        + d.augment as f64
+            * (d.augment_steps as f64 * (1.0 + powderlab::optim::report::BACKWARD_COST) + 1.0);
+    eprintln!(
+        "{}: {} randomised scenes, about {:.0} forward rollouts each ({} by CMA-ES, {} perturbed copies of {} gradient steps); {} threads",
+        d.scene.display(),
+        d.scenes,
+        per_scene,
+        d.budget,
+        d.augment,
+        d.augment_steps,
+        rayon::current_num_threads()
+    );
+    let pb = super::bar(d.scenes as u64, false);
+    let samples = dataset::generate(&scene, &cfg, &d.dir, &|n| pb.set_position(n as u64))?;
+    pb.finish_and_clear();
+    let path = d.dir.join("dataset.safetensors");
+    dataset::write(&path, &samples)?;
+    let errs: Vec<f64> = samples
+        .iter()
+        .filter(|s| s.copy == 0)
+        .map(|s| s.indicator.abs())
+        .collect();
+    let aug: Vec<f64> = samples
+        .iter()
+        .filter(|s| s.copy > 0)
+        .map(|s| s.indicator.abs())
+        .collect();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    println!(
+        "{}: {} samples; optimised scenes' dose error {:.3} g on average, perturbed copies' {:.3} g",
+        path.display(),
+        samples.len(),
+        mean(&errs),
+        mean(&aug)
+    );
+    Ok(())
+}
+
+fn train_cmd(t: TrainArgs) -> Result<()> {
+    let samples = dataset::read(&t.dir.join("dataset.safetensors"))?;
+    let cfg = TrainConfig {
+        epochs: t.epochs,
+        hidden: t.hidden,
+        ..TrainConfig::default()
+    };
+    let (policy, curve) = net::train(&samples, &cfg)?;
+    let path = t.dir.join("policy.safetensors");
+    policy.save(&path)?;
+    let mut csv = String::from("epoch,train_mse,val_mse\n");
+    for p in &curve {
+        csv += &format!("{},{},{}\n", p.epoch, p.train_mse, p.val_mse);
+    }
+    powderlab::util::write_atomic(&t.dir.join("train.csv"), csv.as_bytes())?;
+    let last = curve.last().map_or(f64::NAN, |p| p.train_mse);
+    let val = curve
+        .iter()
+        .map(|p| p.val_mse)
+        .fold(f64::INFINITY, f64::min);
+    println!(
+        "{}: fitted on {} samples; training MSE {last:.4}, lowest validation MSE {val:.4}",
+        path.display(),
+        samples.len()
+    );
+    Ok(())
+}
+
+fn finetune_cmd(f: FinetuneArgs) -> Result<()> {
+    let scene = Scene::load(&f.scene)?;
+    dataset::spec_of(&scene)?;
+    let samples = dataset::read(&f.dir.join("dataset.safetensors"))?;
+    let distilled = f.dir.join("policy.safetensors");
+    let policy = Policy::load(&distilled, &layout())?;
+    let cfg = ReinforceConfig {
+        iterations: f.iterations,
+        batch: f.batch,
+        sigma: f.sigma,
+        lr: f.lr,
+        seed: 0,
+    };
+    let fp = powderlab::study::policy::fingerprint(&distilled)?;
+    let pb = super::bar(f.iterations as u64, false);
+    let mut csv = String::from("iteration,mean_reward\n");
+    let (_, spent) = tune::finetune_scenes(
+        &scene,
+        &policy,
+        &samples,
+        &cfg,
+        &f.dir.join(format!("finetune-{fp}")),
+        &mut |it| {
+            pb.inc(1);
+            pb.set_message(format!("mean reward {:.4}", it.mean_reward));
+            csv += &format!("{},{}\n", it.iteration, it.mean_reward);
+        },
+    )?;
+    pb.finish_and_clear();
+    let path = f.dir.join("finetuned.safetensors");
+    policy.save(&path)?;
+    powderlab::util::write_atomic(&f.dir.join("finetune.csv"), csv.as_bytes())?;
+    println!(
+        "{}: {} episodes, {:.2} G particle-substeps",
+        path.display(),
+        f.iterations * f.batch,
+        spent / 1e9
+    );
+    Ok(())
+}
+
+fn eval_cmd(e: EvalArgs) -> Result<()> {
+    let scene = Scene::load(&e.scene)?;
+    dataset::spec_of(&scene)?;
+    let cfg = EvalConfig {
+        scenes: e.scenes,
+        budget: e.budget,
+        seed: e.seed,
+    };
+    let mut loaded = Vec::new();
+    for name in ["policy", "finetuned"] {
+        let path = e.dir.join(format!("{name}.safetensors"));
+        if name == "policy" || path.exists() {
+            loaded.push((
+                name,
+                Policy::load(&path, &layout())?,
+                powderlab::study::policy::fingerprint(&path)?,
+            ));
+        }
+    }
+    let candidates: Vec<Candidate> = loaded
+        .iter()
+        .map(|(name, p, fp)| Candidate {
+            name,
+            policy: p,
+            fingerprint: fp.clone(),
+        })
+        .collect();
+    let pb = super::bar(e.scenes as u64, false);
+    let rows = eval::run(&scene, &cfg, &e.dir.join("eval"), &candidates, &|k| {
+        pb.set_position(k as u64)
+    })?;
+    pb.finish_and_clear();
+    let mut md =
+        String::from("| method | dose error (g), mean | median | rollouts |\n|---|---|---|---|\n");
+    for m in ["policy", "finetuned", "random", "optimiser", "warm"] {
+        let err = eval::errors(&rows, m);
+        if err.is_empty() {
+            continue;
+        }
+        let mut sorted = err.clone();
+        sorted.sort_by(f64::total_cmp);
+        let ro: f64 = rows
+            .iter()
+            .filter_map(|r| r.get(m))
+            .map(|t| t.rollouts)
+            .sum::<f64>()
+            / err.len() as f64;
+        md += &format!(
+            "| {m} | {:.3} | {:.3} | {ro:.1} |\n",
+            err.iter().sum::<f64>() / err.len() as f64,
+            sorted[sorted.len() / 2],
+        );
+    }
+    powderlab::util::write_atomic(&e.dir.join("eval.md"), md.as_bytes())?;
+    print!("{md}");
+    Ok(())
+}
+
+fn apply_cmd(a: ApplyArgs) -> Result<()> {
+    let scene = Scene::load(&a.scene)?;
+    let spec = dataset::spec_of(&scene)?;
+    let policy = Policy::load(&a.policy, &layout())?;
+    let draw = spec.base(&scene);
+    let (problem, f) = dataset::problem_of(&scene, &draw)?;
+    let theta = policy.act(&f)?;
+    println!(
+        "theta: ({:.4}, {:.4}, {:.4}, {:.4}, {:.4})",
+        theta[0], theta[1], theta[2], theta[3], theta[4]
+    );
+    if let Some(out) = a.write {
+        let s = problem.scene_at(theta);
+        let text = ron::ser::to_string_pretty(&s, ron::ser::PrettyConfig::default())?;
+        powderlab::util::write_atomic(&out, text.as_bytes())?;
+        println!("wrote {}", out.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,230 @@
+//! The policy on held-out randomised scenes, against a random Θ and the per-scene optimiser.
+//!
+//! Held-out scene j is drawn from the stream `seed + HELD_OUT_STREAM`, which the dataset never
+//! uses. On each:
+//! - **optimiser:** CMA-ES with the full budget from the scene's Θ, as the dataset's Θ\* was
+//!   found;
+//! - **random:** one rollout of a Θ drawn uniformly from the box;
+//! - **a policy** (the distilled one, the fine-tuned one): one rollout of its Θ;
+//! - **warm:** CMA-ES from the distilled policy's Θ with a quarter of the budget (rounded up)
+//!   and a smaller first step, [`SIGMA_WARM`].
+//!
+//! Each trial is kept in `dir/scene-J/NAME.json` (a policy's under its file's fingerprint), so
+//! a killed run resumes and a new policy reruns only its own trials.
+
+use super::dataset::{cost, draw_scene, optimise, problem_of, spec_of, SIGMA_FULL};
+use super::net::Policy;
+use crate::scene::randomize::Draw;
+use crate::scene::Scene;
+use crate::util::SplitMix64;
+use anyhow::Context;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Added to the dataset's seed to draw the held-out scenes.
+pub const HELD_OUT_STREAM: u64 = 0x4E1D_0075;
+/// CMA-ES's first step from the policy's Θ: a tenth of the box's width, so that the search
+/// stays near the policy's answer.
+pub const SIGMA_WARM: f64 = 0.2;
+
+/// One method on one held-out scene.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Trial {
+    pub method: String,
+    /// The Θ scored (the search's lowest-loss rollout).
+    pub theta: [f64; 5],
+    pub loss: f64,
+    /// `target − delivered` (g).
+    pub indicator: f64,
+    /// Forward rollouts spent.
+    pub rollouts: f64,
+    pub particle_substeps: f64,
+    pub wall_s: f64,
+}
+
+/// A held-out scene's trials.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SceneEval {
+    pub scene: usize,
+    pub draw: Draw,
+    pub trials: Vec<Trial>,
+}
+
+impl SceneEval {
+    pub fn get(&self, method: &str) -> Option<&Trial> {
+        self.trials.iter().find(|t| t.method == method)
+    }
+}
+
+/// A policy to evaluate: its name on the page, the network and its file's fingerprint.
+pub struct Candidate<'a> {
+    pub name: &'a str,
+    pub policy: &'a Policy,
+    pub fingerprint: String,
+}
+
+/// The held-out comparison's settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalConfig {
+    pub scenes: usize,
+    /// The per-scene optimiser's full budget (forward rollouts).
+    pub budget: usize,
+    /// The dataset's seed (the held-out stream is derived from it).
+    pub seed: u64,
+}
+
+impl EvalConfig {
+    /// The warm start's budget: a quarter of the full one, rounded up.
+    pub fn warm_budget(&self) -> usize {
+        self.budget.div_ceil(4)
+    }
+}
+
+/// One rollout's trial.
+fn single(
+    problem: &crate::optim::problem::Problem,
+    method: &str,
+    theta: [f64; 5],
+) -> anyhow::Result<Trial> {
+    let o = problem.evaluate(theta, false, true)?;
+    Ok(Trial {
+        method: method.into(),
+        theta,
+        loss: o.loss,
+        indicator: o.indicator,
+        rollouts: 1.0,
+        particle_substeps: cost(&o),
+        wall_s: o.wall_s,
+    })
+}
+
+/// A search's trial.
+fn searched(
+    problem: &crate::optim::problem::Problem,
+    method: &str,
+    x0: [f64; 5],
+    sigma: f64,
+    budget: usize,
+    seed: u64,
+) -> anyhow::Result<Trial> {
+    let t0 = std::time::Instant::now();
+    let s = optimise(problem, x0, sigma, budget, seed)?;
+    Ok(Trial {
+        method: method.into(),
+        theta: s.theta,
+        loss: s.best.loss,
+        indicator: s.best.indicator,
+        rollouts: s.rollouts,
+        particle_substeps: s.particle_substeps,
+        wall_s: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// The trial kept in `path`, or `make`'s, written there.
+fn kept(path: &Path, make: impl FnOnce() -> anyhow::Result<Trial>) -> anyhow::Result<Trial> {
+    if let Some(t) = std::fs::read_to_string(path)
+        .ok()
+        .and_then(|s| serde_json::from_str(&s).ok())
+    {
+        return Ok(t);
+    }
+    let t = make()?;
+    crate::util::write_atomic(path, serde_json::to_string(&t)?.as_bytes())?;
+    Ok(t)
+}
+
+/// Runs (or resumes) the comparison in `dir`. Without candidates it runs only the optimiser
+/// and random Θ, which need no policy. `progress(done)` hears of each finished scene.
+pub fn run(
+    base: &Scene,
+    cfg: &EvalConfig,
+    dir: &Path,
+    candidates: &[Candidate],
+    progress: &(dyn Fn(usize) + Sync),
+) -> anyhow::Result<Vec<SceneEval>> {
+    crate::util::create_output_dir(dir, "--dir")?;
+    let cfg_path = dir.join("eval-config.json");
+    let hash = crate::optim::fnv1a(&base.source);
+    let stamp = serde_json::json!({ "config": cfg, "scene_hash": hash });
+    match std::fs::read_to_string(&cfg_path) {
+        Ok(t) if serde_json::from_str::<serde_json::Value>(&t).ok().as_ref() != Some(&stamp) => {
+            anyhow::bail!(
+                "{}: this folder holds an evaluation of other settings or another scene file; \
+                 rerun with the same ones, or choose another --dir",
+                cfg_path.display()
+            )
+        }
+        Ok(_) => {}
+        Err(_) => {
+            crate::util::write_atomic(&cfg_path, serde_json::to_string_pretty(&stamp)?.as_bytes())?
+        }
+    }
+    let spec = spec_of(base)?;
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    (0..cfg.scenes)
+        .into_par_iter()
+        .map(|j| {
+            let d = draw_scene(spec, base, cfg.seed.wrapping_add(HELD_OUT_STREAM), j);
+            let (problem, f) = problem_of(base, &d)?;
+            let sd = dir.join(format!("scene-{j}"));
+            std::fs::create_dir_all(&sd)?;
+            let mut trials = vec![
+                kept(&sd.join("optimiser.json"), || {
+                    searched(
+                        &problem,
+                        "optimiser",
+                        problem.scene_theta(),
+                        SIGMA_FULL,
+                        cfg.budget,
+                        1_000_000 + j as u64,
+                    )
+                })?,
+                kept(&sd.join("random.json"), || {
+                    let mut rng = SplitMix64(0x5EED_0000 ^ j as u64);
+                    single(
+                        &problem,
+                        "random",
+                        std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0)),
+                    )
+                })?,
+            ];
+            for (k, c) in candidates.iter().enumerate() {
+                let theta = c.policy.act(&f)?;
+                trials.push(kept(
+                    &sd.join(format!("{}-{}.json", c.name, c.fingerprint)),
+                    || single(&problem, c.name, theta),
+                )?);
+                if k == 0 {
+                    trials.push(kept(
+                        &sd.join(format!("warm-{}.json", c.fingerprint)),
+                        || {
+                            searched(
+                                &problem,
+                                "warm",
+                                theta,
+                                SIGMA_WARM,
+                                cfg.warm_budget(),
+                                2_000_000 + j as u64,
+                            )
+                        },
+                    )?);
+                }
+            }
+            progress(done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1);
+            Ok(SceneEval {
+                scene: j,
+                draw: d,
+                trials,
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()
+        .with_context(|| format!("evaluating in {}", dir.display()))
+}
+
+/// A method's dose errors |indicator| over the scenes, in scene order.
+pub fn errors(rows: &[SceneEval], method: &str) -> Vec<f64> {
+    rows.iter()
+        .filter_map(|r| r.get(method).map(|t| t.indicator.abs()))
+        .collect()
+}

@@ -1,0 +1,15 @@
+//! A skill policy over randomised scenes (seed B's Sim2Real step, docs/design.md §13):
+//!
+//! - [`features`]: what the policy sees of a scene;
+//! - [`dataset`]: randomised scenes with their optimised Θ\*, and seed B's augmentation;
+//! - [`net`]: the MLP from features to Θ (candle), its fit and its safetensors file;
+//! - [`reinforce`]: the fine-tune, REINFORCE with a baseline, and [`tune`], its episodes as
+//!   rollouts rewarded with −L;
+//! - [`eval`]: the policy against a random Θ and the per-scene optimiser on held-out scenes.
+
+pub mod dataset;
+pub mod eval;
+pub mod features;
+pub mod net;
+pub mod reinforce;
+pub mod tune;

@@ -1,0 +1,324 @@
+//! The policy network: an MLP (candle) from the scene's features, standardised by the training
+//! set's mean and spread, to Θ; its supervised fit to a dataset; and its safetensors file.
+
+use super::dataset::Sample;
+use crate::optim::mlp::Mlp;
+use crate::util::SplitMix64;
+use anyhow::Context;
+use candle_core::{DType, Device, Tensor, Var};
+use candle_nn::{AdamW, Optimizer, ParamsAdamW};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// The policy file's format tag.
+pub const FORMAT: &str = "powderlab-policy/1";
+/// A feature whose training spread is below this is passed through centred, not scaled (a
+/// constant feature, such as the delivered mass of single scoops).
+const MIN_SPREAD: f64 = 1e-9;
+
+/// Features → Θ.
+pub struct Policy {
+    pub mlp: Mlp,
+    pub x_mean: Vec<f64>,
+    pub x_std: Vec<f64>,
+    pub hidden: usize,
+    pub layout: Vec<String>,
+}
+
+/// How to fit.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainConfig {
+    /// Full-batch AdamW steps.
+    pub epochs: usize,
+    pub lr: f64,
+    pub weight_decay: f64,
+    /// Units per hidden layer (two layers).
+    pub hidden: usize,
+    /// Every `val_every`-th scene (all its copies) is held out to choose the epoch; 0 keeps
+    /// none and the last epoch's weights.
+    pub val_every: usize,
+    pub seed: u64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            epochs: 3000,
+            lr: 3e-3,
+            weight_decay: 1e-3,
+            hidden: 64,
+            val_every: 5,
+            seed: 0,
+        }
+    }
+}
+
+/// One point of the training curve.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TrainPoint {
+    pub epoch: usize,
+    pub train_mse: f64,
+    pub val_mse: f64,
+}
+
+impl Policy {
+    /// A fresh network whose output starts at `theta_mean` for every input.
+    pub fn new(
+        layout: Vec<String>,
+        hidden: usize,
+        x_mean: Vec<f64>,
+        x_std: Vec<f64>,
+        theta_mean: [f64; 5],
+        seed: u64,
+    ) -> anyhow::Result<Policy> {
+        let dev = Device::Cpu;
+        let mut rng = SplitMix64(seed);
+        let mlp = Mlp::new(&[layout.len(), hidden, hidden, 5], &mut rng, &dev)?;
+        let (w, b) = mlp.layers.last().context("three layers")?;
+        w.set(&(w.as_tensor() * 0.1)?)?;
+        b.set(&Tensor::from_vec(theta_mean.to_vec(), 5, &dev)?)?;
+        Ok(Policy {
+            mlp,
+            x_mean,
+            x_std,
+            hidden,
+            layout,
+        })
+    }
+
+    /// Standardised features `[n, F]` of raw rows.
+    pub fn inputs(&self, rows: &[Vec<f64>]) -> anyhow::Result<Tensor> {
+        let f = self.layout.len();
+        let flat: Vec<f64> = rows
+            .iter()
+            .flat_map(|r| {
+                r.iter().enumerate().map(|(i, v)| {
+                    let s = if self.x_std[i] > MIN_SPREAD {
+                        self.x_std[i]
+                    } else {
+                        1.0
+                    };
+                    (v - self.x_mean[i]) / s
+                })
+            })
+            .collect();
+        Ok(Tensor::from_vec(flat, (rows.len(), f), &Device::Cpu)?)
+    }
+
+    /// The network's Θ (before clamping) for standardised inputs.
+    pub fn forward(&self, x: &Tensor) -> anyhow::Result<Tensor> {
+        Ok(self.mlp.forward(x)?)
+    }
+
+    /// Θ for one scene's features, clamped into the box.
+    pub fn act(&self, features: &[f64]) -> anyhow::Result<[f64; 5]> {
+        anyhow::ensure!(
+            features.len() == self.layout.len(),
+            "{} features given, the policy takes {}",
+            features.len(),
+            self.layout.len()
+        );
+        let out = self
+            .forward(&self.inputs(&[features.to_vec()])?)?
+            .to_vec2::<f64>()?;
+        Ok(std::array::from_fn(|i| out[0][i].clamp(-1.0, 1.0)))
+    }
+
+    /// Writes the network, its standardisation and its layout (atomically).
+    pub fn save(&self, path: &Path) -> anyhow::Result<()> {
+        let dev = Device::Cpu;
+        let mut t: Vec<(String, Tensor)> = Vec::new();
+        for (k, (w, b)) in self.mlp.layers.iter().enumerate() {
+            t.push((format!("layer{k}.weight"), w.as_tensor().clone()));
+            t.push((format!("layer{k}.bias"), b.as_tensor().clone()));
+        }
+        t.push((
+            "x_mean".into(),
+            Tensor::from_vec(self.x_mean.clone(), self.x_mean.len(), &dev)?,
+        ));
+        t.push((
+            "x_std".into(),
+            Tensor::from_vec(self.x_std.clone(), self.x_std.len(), &dev)?,
+        ));
+        let meta = HashMap::from([
+            ("format".to_string(), FORMAT.to_string()),
+            ("features".to_string(), self.layout.join(",")),
+            ("hidden".to_string(), self.hidden.to_string()),
+        ]);
+        let bytes = safetensors::serialize(t, Some(meta))
+            .map_err(|e| anyhow::anyhow!("{}: writing safetensors: {e}", path.display()))?;
+        crate::util::write_atomic(path, &bytes)?;
+        Ok(())
+    }
+
+    /// Reads a policy file, refusing another format or a layout other than `expected`.
+    pub fn load(path: &Path, expected: &[String]) -> anyhow::Result<Policy> {
+        let bytes = std::fs::read(path)
+            .with_context(|| format!("{}: cannot read the policy file", path.display()))?;
+        let (meta, t) = open(path, &bytes, FORMAT)?;
+        let layout: Vec<String> = meta
+            .get("features")
+            .map(|s| s.split(',').map(String::from).collect())
+            .unwrap_or_default();
+        super::features::check_layout(path, &layout, expected)?;
+        let hidden: usize = meta
+            .get("hidden")
+            .and_then(|h| h.parse().ok())
+            .with_context(|| {
+                format!(
+                    "{}: field metadata.hidden: missing or not a count",
+                    path.display()
+                )
+            })?;
+        let get = |n: &str| {
+            t.get(n).cloned().with_context(|| {
+                format!(
+                    "{}: field {n}: missing; retrain with `powderlab policy train`",
+                    path.display()
+                )
+            })
+        };
+        let mut layers = Vec::new();
+        for k in 0..3 {
+            let (w, b) = (
+                get(&format!("layer{k}.weight"))?,
+                get(&format!("layer{k}.bias"))?,
+            );
+            layers.push((Var::from_tensor(&w)?, Var::from_tensor(&b)?));
+        }
+        let sizes = [layout.len(), hidden, hidden, 5];
+        for (k, (w, _)) in layers.iter().enumerate() {
+            anyhow::ensure!(
+                w.dims() == [sizes[k + 1], sizes[k]],
+                "{}: field layer{k}.weight: shape {:?}, expected {:?} for {} features and {hidden} hidden units",
+                path.display(),
+                w.dims(),
+                [sizes[k + 1], sizes[k]],
+                layout.len()
+            );
+        }
+        Ok(Policy {
+            mlp: Mlp { layers },
+            x_mean: get("x_mean")?.to_vec1()?,
+            x_std: get("x_std")?.to_vec1()?,
+            hidden,
+            layout,
+        })
+    }
+}
+
+/// A safetensors file's metadata and tensors (f64, on the CPU), refusing another `format`.
+pub fn open(
+    path: &Path,
+    bytes: &[u8],
+    format: &str,
+) -> anyhow::Result<(HashMap<String, String>, HashMap<String, Tensor>)> {
+    let bad = |what: String| anyhow::anyhow!("{}: {what}", path.display());
+    let (_, m) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| bad(format!("not a safetensors file ({e})")))?;
+    let meta = m.metadata().clone().unwrap_or_default();
+    let found = meta.get("format").map_or("none", String::as_str);
+    if found != format {
+        return Err(bad(format!(
+            "field metadata.format: '{found}', expected '{format}'; write it with the matching \
+             `powderlab policy` command"
+        )));
+    }
+    let t = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
+        .map_err(|e| bad(format!("reading its tensors: {e}")))?;
+    let t = t
+        .into_iter()
+        .map(|(k, v)| Ok((k, v.to_dtype(DType::F64)?)))
+        .collect::<candle_core::Result<_>>()?;
+    Ok((meta, t))
+}
+
+/// Mean and spread of each column.
+fn moments(rows: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+    let n = rows.len().max(1) as f64;
+    let f = rows.first().map_or(0, Vec::len);
+    let mean: Vec<f64> = (0..f)
+        .map(|i| rows.iter().map(|r| r[i]).sum::<f64>() / n)
+        .collect();
+    let std = (0..f)
+        .map(|i| (rows.iter().map(|r| (r[i] - mean[i]).powi(2)).sum::<f64>() / n).sqrt())
+        .collect();
+    (mean, std)
+}
+
+/// Fits a policy to `samples` by full-batch AdamW on the mean squared error in Θ. With a
+/// validation split, the weights of the epoch of lowest validation error are kept.
+pub fn train(samples: &[Sample], cfg: &TrainConfig) -> anyhow::Result<(Policy, Vec<TrainPoint>)> {
+    anyhow::ensure!(!samples.is_empty(), "the dataset is empty");
+    let is_val = |s: &Sample| cfg.val_every > 0 && s.scene % cfg.val_every == cfg.val_every - 1;
+    let (val, tr): (Vec<&Sample>, Vec<&Sample>) = samples.iter().partition(|s| is_val(s));
+    anyhow::ensure!(
+        !tr.is_empty(),
+        "no training samples outside the validation split"
+    );
+    let xs: Vec<Vec<f64>> = tr.iter().map(|s| s.features.clone()).collect();
+    let (x_mean, x_std) = moments(&xs);
+    let theta_rows: Vec<Vec<f64>> = tr.iter().map(|s| s.theta.to_vec()).collect();
+    let (tm, _) = moments(&theta_rows);
+    let policy = Policy::new(
+        super::features::layout(),
+        cfg.hidden,
+        x_mean,
+        x_std,
+        std::array::from_fn(|i| tm[i]),
+        cfg.seed,
+    )?;
+    let dev = Device::Cpu;
+    let targets = |set: &[&Sample]| -> anyhow::Result<Tensor> {
+        let flat: Vec<f64> = set.iter().flat_map(|s| s.theta).collect();
+        Ok(Tensor::from_vec(flat, (set.len(), 5), &dev)?)
+    };
+    let (x_tr, y_tr) = (policy.inputs(&xs)?, targets(&tr)?);
+    let x_val = policy.inputs(&val.iter().map(|s| s.features.clone()).collect::<Vec<_>>())?;
+    let y_val = targets(&val)?;
+    let mut opt = AdamW::new(
+        policy.mlp.vars(),
+        ParamsAdamW {
+            lr: cfg.lr,
+            weight_decay: cfg.weight_decay,
+            ..Default::default()
+        },
+    )?;
+    let mse = |x: &Tensor, y: &Tensor| -> anyhow::Result<Tensor> {
+        Ok((policy.forward(x)? - y)?.sqr()?.mean_all()?)
+    };
+    let mut curve = Vec::new();
+    let mut best: Option<(f64, Vec<Tensor>)> = None;
+    for epoch in 1..=cfg.epochs {
+        let loss = mse(&x_tr, &y_tr)?;
+        opt.backward_step(&loss)?;
+        let v = if val.is_empty() {
+            f64::NAN
+        } else {
+            mse(&x_val, &y_val)?.to_scalar::<f64>()?
+        };
+        if epoch == 1 || epoch % 10 == 0 || epoch == cfg.epochs {
+            curve.push(TrainPoint {
+                epoch,
+                train_mse: loss.to_scalar::<f64>()?,
+                val_mse: v,
+            });
+        }
+        if !val.is_empty() && best.as_ref().is_none_or(|(b, _)| v < *b) {
+            let copy = policy
+                .mlp
+                .vars()
+                .iter()
+                .map(|w| w.as_tensor().copy())
+                .collect::<candle_core::Result<_>>()?;
+            best = Some((v, copy));
+        }
+    }
+    if let Some((_, weights)) = best {
+        for (var, w) in policy.mlp.vars().iter().zip(weights) {
+            var.set(&w)?;
+        }
+    }
+    Ok((policy, curve))
+}

@@ -1,0 +1,364 @@
+//! The skill policy (seed B's Sim2Real step): the randomised scenes, the dataset file, the
+//! network's fit, REINFORCE, the refusal of a policy of another feature layout, and the
+//! commands end to end on a small scene.
+#![cfg(feature = "lab")]
+
+use powderlab::policy::dataset::{self, gauss_newton, Sample};
+use powderlab::policy::features::layout;
+use powderlab::policy::net::{train, Policy, TrainConfig};
+use powderlab::policy::reinforce::{finetune, ReinforceConfig};
+use powderlab::scene::randomize::Draw;
+use powderlab::scene::Scene;
+use powderlab::util::SplitMix64;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+mod common;
+
+fn scratch(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("powderlab-policy-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const RANDOMIZE: &str = r#"    randomize: Some((
+        source: "source_cup",
+        fill_height: Some((0.015, 0.020)),
+        friction_deg: Some((25.0, 35.0)),
+        youngs_modulus: Some((4e3, 6e3)),
+        source_x: Some((0.038, 0.042)),
+        cup_distance: Some((0.07, 0.09)),
+        target_g: Some((1.0, 3.0)),
+    )),
+"#;
+
+/// The small transport scene with `randomize` as its last field.
+fn tiny_with(dir: &Path, randomize: &str) -> PathBuf {
+    let base =
+        std::fs::read_to_string(common::scene_path("../tests/scenes/tiny_transport.ron")).unwrap();
+    let text = base.trim_end().strip_suffix(')').unwrap().to_string() + randomize + ")\n";
+    let p = dir.join("tiny_policy.ron");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn draw(k: u64) -> Draw {
+    Draw {
+        fill_height: 0.02 + 0.001 * k as f64,
+        friction_deg: 30.0,
+        density: 1500.0,
+        youngs_modulus: 5e3,
+        source_x: 0.06,
+        cup_distance: 0.12,
+        target_g: 2.0,
+        packing_seed: u64::MAX - k,
+    }
+}
+
+/// Samples whose Θ is a smooth function of two of the features.
+fn synthetic(n: usize) -> Vec<Sample> {
+    let f = layout().len();
+    let mut rng = SplitMix64(3);
+    (0..n)
+        .map(|k| {
+            let x: Vec<f64> = (0..f).map(|_| rng.uniform_in(-1.0, 1.0)).collect();
+            let theta = [
+                0.5 * x[0],
+                (x[1] * 1.5).sin() * 0.6,
+                0.3 * x[0] * x[1],
+                -0.4,
+                0.2 * x[1] - 0.3 * x[0],
+            ];
+            Sample {
+                scene: k,
+                copy: k % 3,
+                draw: draw(k as u64),
+                features: x,
+                theta,
+                loss: 0.01 * k as f64,
+                indicator: -0.1 * k as f64,
+                start_loss: 0.02 * k as f64,
+                rollouts: 20.0,
+                particle_substeps: 1.25e7,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn the_dataset_file_round_trips_every_field() {
+    let d = scratch("roundtrip");
+    let samples = synthetic(7);
+    let path = d.join("dataset.safetensors");
+    dataset::write(&path, &samples).unwrap();
+    assert_eq!(dataset::read(&path).unwrap(), samples);
+    // A file that is not a dataset is refused by name.
+    std::fs::write(&path, b"not a file of tensors").unwrap();
+    let e = format!("{:#}", dataset::read(&path).unwrap_err());
+    assert!(
+        e.contains("dataset.safetensors") && e.contains("safetensors"),
+        "{e}"
+    );
+}
+
+#[test]
+fn the_mlp_fits_a_small_smooth_map() {
+    let samples = synthetic(200);
+    let var: f64 = {
+        let m: Vec<f64> = (0..5)
+            .map(|i| samples.iter().map(|s| s.theta[i]).sum::<f64>() / 200.0)
+            .collect();
+        samples
+            .iter()
+            .flat_map(|s| {
+                (0..5)
+                    .map(|i| (s.theta[i] - m[i]).powi(2))
+                    .collect::<Vec<_>>()
+            })
+            .sum::<f64>()
+            / 1000.0
+    };
+    let cfg = TrainConfig {
+        epochs: 600,
+        val_every: 0,
+        ..TrainConfig::default()
+    };
+    let (policy, curve) = train(&samples, &cfg).unwrap();
+    let last = curve.last().unwrap().train_mse;
+    // The map is smooth and noiseless: the fit must explain at least 95 % of Θ's variance.
+    assert!(last < 0.05 * var, "MSE {last} against a variance of {var}");
+    let s = &samples[17];
+    let got = policy.act(&s.features).unwrap();
+    let err: f64 = (0..5).map(|i| (got[i] - s.theta[i]).powi(2)).sum::<f64>() / 5.0;
+    assert!(err < 0.2 * var, "one sample's error {err}");
+}
+
+#[test]
+fn reinforce_improves_a_contextual_bandit() {
+    // Each context asks for its own Θ: a quarter of its first two features.
+    let names: Vec<String> = (0..3).map(|i| format!("x{i}")).collect();
+    let policy = Policy::new(names, 16, vec![0.0; 3], vec![1.0; 3], [0.0; 5], 1).unwrap();
+    let mut rng = SplitMix64(9);
+    let contexts: Vec<Vec<f64>> = (0..8)
+        .map(|_| (0..3).map(|_| rng.uniform_in(-1.0, 1.0)).collect())
+        .collect();
+    let want = |c: &[f64]| [0.6, -0.4, 0.25 * c[0], 0.25 * c[1], 0.3];
+    let loss = |p: &Policy| -> f64 {
+        contexts
+            .iter()
+            .map(|c| {
+                let t = p.act(c).unwrap();
+                let w = want(c);
+                (0..5).map(|i| (t[i] - w[i]).powi(2)).sum::<f64>()
+            })
+            .sum::<f64>()
+            / contexts.len() as f64
+    };
+    let before = loss(&policy);
+    let cfg = ReinforceConfig {
+        iterations: 150,
+        batch: 16,
+        sigma: 0.1,
+        lr: 1e-2,
+        seed: 4,
+    };
+    let reward = |_: usize, _: usize, ctx: usize, theta: [f64; 5]| -> anyhow::Result<f64> {
+        let w = want(&contexts[ctx]);
+        Ok(-(0..5).map(|i| (theta[i] - w[i]).powi(2)).sum::<f64>())
+    };
+    let its = finetune(&policy, &contexts, &cfg, &reward, &mut |_| {}).unwrap();
+    let after = loss(&policy);
+    assert_eq!(its.len(), 150);
+    // Only sampled rewards reach the learner; it must still cut the mean's loss by 3×.
+    assert!(after < before / 3.0, "loss {before} -> {after}");
+}
+
+#[test]
+fn a_policy_of_another_feature_layout_is_refused_by_name() {
+    let d = scratch("layout");
+    let names: Vec<String> = ["fill_height", "friction_deg", "target_g"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    let p = Policy::new(names, 8, vec![0.0; 3], vec![1.0; 3], [0.0; 5], 0).unwrap();
+    let path = d.join("old.safetensors");
+    p.save(&path).unwrap();
+    let e = match Policy::load(&path, &layout()) {
+        Ok(_) => panic!(
+            "a policy of 3 features was loaded for a layout of {}",
+            layout().len()
+        ),
+        Err(e) => format!("{e:#}"),
+    };
+    assert!(e.contains("old.safetensors"), "{e}");
+    assert!(
+        e.contains("feature layout") && e.contains("3 features"),
+        "{e}"
+    );
+    assert!(e.contains("policy train"), "{e}");
+    assert_eq!(e.lines().count(), 1, "{e}");
+    // Its own layout loads, with the same answers.
+    let names = p.layout.clone();
+    let q = Policy::load(&path, &names).unwrap();
+    assert_eq!(
+        q.act(&[0.1, 0.2, 0.3]).unwrap(),
+        p.act(&[0.1, 0.2, 0.3]).unwrap()
+    );
+}
+
+#[test]
+fn a_gauss_newton_step_lands_on_the_root_of_a_linear_dose() {
+    // r(θ) = a·θ − b, L = r²: one step from a point within reach solves r = 0.
+    let a = [0.3, -0.2, 0.1, 0.0, 0.4];
+    let b = 0.05;
+    let theta = [0.1, 0.0, 0.0, 0.0, 0.0];
+    let r = a.iter().zip(&theta).map(|(x, y)| x * y).sum::<f64>() - b;
+    let g: [f64; 5] = std::array::from_fn(|i| 2.0 * r * a[i]);
+    let next = gauss_newton(theta, r * r, g);
+    let r2 = a.iter().zip(&next).map(|(x, y)| x * y).sum::<f64>() - b;
+    assert!(r2.abs() < 1e-12, "residual {r2}");
+}
+
+#[test]
+fn randomised_scenes_are_drawn_reproducibly_and_move_the_spoon_with_the_source() {
+    let d = scratch("draw");
+    let scene = Scene::load(tiny_with(&d, RANDOMIZE)).unwrap();
+    let spec = dataset::spec_of(&scene).unwrap();
+    let a = dataset::draw_scene(spec, &scene, 0, 3);
+    assert_eq!(a, dataset::draw_scene(spec, &scene, 0, 3));
+    assert_ne!(a, dataset::draw_scene(spec, &scene, 0, 4));
+    assert!((0.07..=0.09).contains(&a.cup_distance) && (1.0..=3.0).contains(&a.target_g));
+    // A quantity without a range keeps the scene's value.
+    assert_eq!(a.density, 1500.0);
+    let s = spec.apply(&scene, &a).unwrap();
+    let x = |s: &Scene, n: &str| s.colliders.iter().find(|c| c.name == n).unwrap().position.0;
+    assert!((x(&s, "source_cup") - a.source_x).abs() < 1e-15);
+    assert!((x(&s, "target_cup") - (a.source_x + a.cup_distance)).abs() < 1e-15);
+    let moved = x(&s, "spoon") - x(&scene, "spoon");
+    assert!((moved - (a.source_x - 0.04)).abs() < 1e-15);
+    assert_eq!(s.simulation.seed, a.packing_seed);
+}
+
+#[test]
+fn a_bad_range_is_refused_in_one_line_naming_the_field() {
+    let d = scratch("bad");
+    for (from, to, field) in [
+        (
+            "target_g: Some((1.0, 3.0))",
+            "target_g: Some((3.0, 1.0))",
+            "randomize.target_g",
+        ),
+        (
+            "friction_deg: Some((25.0, 35.0))",
+            "friction_deg: Some((25.0, 95.0))",
+            "randomize.friction_deg",
+        ),
+        (
+            "cup_distance: Some((0.07, 0.09))",
+            "cup_distance: Some((0.07, 0.3))",
+            "randomize.cup_distance",
+        ),
+        (
+            "source: \"source_cup\"",
+            "source: \"spoon\"",
+            "randomize.source",
+        ),
+    ] {
+        let p = tiny_with(&d, &RANDOMIZE.replace(from, to));
+        let out = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+            .args(["policy", "dataset"])
+            .arg(&p)
+            .arg("--dir")
+            .arg(d.join("out"))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).trim().to_string();
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(
+            err.contains(field) && err.contains("tiny_policy.ron"),
+            "{field}: {err}"
+        );
+    }
+}
+
+fn powderlab(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(args)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{args:?}: {err}");
+    String::from_utf8_lossy(&out.stdout).to_string()
+}
+
+#[test]
+fn the_commands_run_end_to_end_on_a_small_scene_and_resume() {
+    let d = scratch("e2e");
+    let scene = tiny_with(&d, RANDOMIZE);
+    let (s, dir) = (scene.to_str().unwrap(), d.join("run"));
+    let dir = dir.to_str().unwrap();
+    let ds = [
+        "policy",
+        "dataset",
+        s,
+        "--dir",
+        dir,
+        "--scenes",
+        "3",
+        "--budget",
+        "2",
+        "--augment",
+        "1",
+    ];
+    let out = powderlab(&ds);
+    assert!(out.contains("6 samples"), "{out}");
+    let samples = dataset::read(&Path::new(dir).join("dataset.safetensors")).unwrap();
+    assert_eq!(samples.len(), 6);
+    assert!(samples
+        .iter()
+        .all(|x| x.loss.is_finite() && x.rollouts > 0.0));
+    // A rerun finds every scene done and writes the same file.
+    powderlab(&ds);
+    assert_eq!(
+        dataset::read(&Path::new(dir).join("dataset.safetensors")).unwrap(),
+        samples
+    );
+    let out = powderlab(&[
+        "policy", "train", "--dir", dir, "--epochs", "50", "--hidden", "8",
+    ]);
+    assert!(out.contains("fitted on 6 samples"), "{out}");
+    let out = powderlab(&[
+        "policy",
+        "finetune",
+        s,
+        "--dir",
+        dir,
+        "--iterations",
+        "1",
+        "--batch",
+        "2",
+    ]);
+    assert!(out.contains("2 episodes"), "{out}");
+    let out = powderlab(&[
+        "policy", "eval", s, "--dir", dir, "--scenes", "1", "--budget", "2",
+    ]);
+    for m in ["policy", "finetuned", "random", "optimiser", "warm"] {
+        assert!(out.contains(&format!("| {m} |")), "{m}: {out}");
+    }
+    let written = d.join("applied.ron");
+    let policy = Path::new(dir).join("policy.safetensors");
+    let out = powderlab(&[
+        "policy",
+        "apply",
+        s,
+        "--policy",
+        policy.to_str().unwrap(),
+        "--write",
+        written.to_str().unwrap(),
+    ]);
+    assert!(out.starts_with("theta: ("), "{out}");
+    let applied = Scene::load(&written).unwrap();
+    assert!(applied.randomize.is_some());
+}
