@@ -121,6 +121,9 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "planning" {
         return planning_cmd(a);
     }
+    if a.study == "policy" {
+        return policy_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
             "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration, demonstration or planning",
@@ -592,6 +595,65 @@ fn planning_cmd(a: Args) -> Result<()> {
         start,
         "planning.md",
         json!({ "instances": rows.len(), "push_instances": push_rows.len() }),
+    );
+    Ok(())
+}
+
+/// `powderlab study policy`: seed B's Sim2Real step on the randomised dosing scene (36
+/// optimised scenes with 2 perturbed copies each, the fit, the fine-tune, 20 held-out scenes).
+fn policy_cmd(a: Args) -> Result<()> {
+    use powderlab::policy::{dataset, eval, net, reinforce};
+    use powderlab::study::policy;
+    let path = a
+        .scene
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("scenes/policy_dosing.ron"));
+    let scene = powderlab::scene::Scene::load(&path)?;
+    dataset::spec_of(&scene)?;
+    let settings = policy::Settings {
+        dataset: dataset::Config {
+            scene_hash: powderlab::optim::fnv1a(&scene.source),
+            scenes: 36,
+            budget: 20,
+            augment: 2,
+            augment_steps: 1,
+            perturb: 0.1,
+            seed: 0,
+        },
+        train: net::TrainConfig::default(),
+        finetune: reinforce::ReinforceConfig::default(),
+        eval: eval::EvalConfig {
+            scenes: 20,
+            budget: 30,
+            seed: 0,
+        },
+    };
+    let pb = super::bar(1, a.json);
+    let start = Instant::now();
+    let dir = a.out.join("policy");
+    let o = policy::run(&scene, &settings, &dir, &|step, k, n| {
+        pb.set_length(n as u64);
+        pb.set_position(k as u64);
+        pb.set_message(step.to_string());
+    })?;
+    pb.finish_and_clear();
+    let command = format!("powderlab study policy --out {}", a.out.display());
+    let md = policy::report(
+        &o,
+        &settings,
+        &scene,
+        &command,
+        &powderlab::study::optimizers::machine(),
+    );
+    powderlab::util::create_output_dir(&a.results, "--results")?;
+    policy::figure(&a.results.join("policy.svg"), &o.curve, &o.iterations)?;
+    powderlab::util::write_atomic(&a.results.join("policy.md"), md.as_bytes())?;
+    print_page(
+        &a,
+        &md,
+        start,
+        "policy.md and policy.svg",
+        json!({ "scenes": o.rows.len() }),
     );
     Ok(())
 }

@@ -28,6 +28,7 @@ pub mod landscape;
 pub mod optimizers;
 pub mod planning;
 pub mod plot;
+pub mod policy;
 pub mod push;
 pub mod refine;
 pub mod warm_start;
