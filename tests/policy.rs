@@ -5,7 +5,7 @@
 
 use powderlab::policy::dataset::{self, gauss_newton, Sample};
 use powderlab::policy::features::layout;
-use powderlab::policy::net::{train, Policy, TrainConfig};
+use powderlab::policy::net::{train, usable, Policy, TrainConfig};
 use powderlab::policy::reinforce::{finetune, ReinforceConfig};
 use powderlab::scene::randomize::Draw;
 use powderlab::scene::Scene;
@@ -77,7 +77,8 @@ fn synthetic(n: usize) -> Vec<Sample> {
                 features: x,
                 theta,
                 loss: 0.01 * k as f64,
-                indicator: -0.1 * k as f64,
+                // Within 0.5 g but for every 50th, which misses by 2 g.
+                indicator: if k % 50 == 49 { 2.0 } else { -0.001 * k as f64 },
                 start_loss: 0.02 * k as f64,
                 rollouts: 20.0,
                 particle_substeps: 1.25e7,
@@ -124,6 +125,8 @@ fn the_mlp_fits_a_small_smooth_map() {
         val_every: 0,
         ..TrainConfig::default()
     };
+    // The labels that miss their target by 2 g are not learnt.
+    assert_eq!(usable(&samples, &cfg).len(), 196);
     let (policy, curve) = train(&samples, &cfg).unwrap();
     let last = curve.last().unwrap().train_mse;
     // The map is smooth and noiseless: the fit must explain at least 95 % of Θ's variance.

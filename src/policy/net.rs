@@ -38,6 +38,10 @@ pub struct TrainConfig {
     /// Every `val_every`-th scene (all its copies) is held out to choose the epoch; 0 keeps
     /// none and the last epoch's weights.
     pub val_every: usize,
+    /// Samples whose Θ misses its scene's target by more than this (g) are left out: a
+    /// perturbed copy whose Θ\* no longer scoops, or a scene the optimiser did not solve, is no
+    /// answer to learn.
+    pub max_label_error_g: f64,
     pub seed: u64,
 }
 
@@ -49,6 +53,7 @@ impl Default for TrainConfig {
             weight_decay: 1e-3,
             hidden: 64,
             val_every: 5,
+            max_label_error_g: 0.5,
             seed: 0,
         }
     }
@@ -247,10 +252,23 @@ fn moments(rows: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
     (mean, std)
 }
 
-/// Fits a policy to `samples` by full-batch AdamW on the mean squared error in Θ. With a
-/// validation split, the weights of the epoch of lowest validation error are kept.
+/// The samples [`train`] learns from: those whose Θ doses within `max_label_error_g`.
+pub fn usable<'a>(samples: &'a [Sample], cfg: &TrainConfig) -> Vec<&'a Sample> {
+    samples
+        .iter()
+        .filter(|s| s.indicator.abs() <= cfg.max_label_error_g)
+        .collect()
+}
+
+/// Fits a policy to the [`usable`] samples by full-batch AdamW on the mean squared error in Θ.
+/// With a validation split, the weights of the epoch of lowest validation error are kept.
 pub fn train(samples: &[Sample], cfg: &TrainConfig) -> anyhow::Result<(Policy, Vec<TrainPoint>)> {
-    anyhow::ensure!(!samples.is_empty(), "the dataset is empty");
+    let samples = usable(samples, cfg);
+    anyhow::ensure!(
+        !samples.is_empty(),
+        "no sample of the dataset doses within {} g of its target",
+        cfg.max_label_error_g
+    );
     let is_val = |s: &Sample| cfg.val_every > 0 && s.scene % cfg.val_every == cfg.val_every - 1;
     let (val, tr): (Vec<&Sample>, Vec<&Sample>) = samples.iter().partition(|s| is_val(s));
     anyhow::ensure!(
