@@ -204,6 +204,7 @@ fn a_policy_of_another_feature_layout_is_refused_by_name() {
     // Its own layout loads, with the same answers.
     let names = p.layout.clone();
     let q = Policy::load(&path, &names).unwrap();
+    assert_eq!(q.fingerprint().unwrap(), p.fingerprint().unwrap());
     assert_eq!(
         q.act(&[0.1, 0.2, 0.3]).unwrap(),
         p.act(&[0.1, 0.2, 0.3]).unwrap()

@@ -232,7 +232,7 @@ fn finetune_cmd(f: FinetuneArgs) -> Result<()> {
         lr: f.lr,
         seed: 0,
     };
-    let fp = powderlab::study::policy::fingerprint(&distilled)?;
+    let fp = policy.fingerprint()?;
     let pb = super::bar(f.iterations as u64, false);
     let mut csv = String::from("iteration,mean_reward\n");
     let (_, spent) = tune::finetune_scenes(
@@ -272,11 +272,9 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
     for name in ["policy", "finetuned"] {
         let path = e.dir.join(format!("{name}.safetensors"));
         if name == "policy" || path.exists() {
-            loaded.push((
-                name,
-                Policy::load(&path, &layout())?,
-                powderlab::study::policy::fingerprint(&path)?,
-            ));
+            let p = Policy::load(&path, &layout())?;
+            let fp = p.fingerprint()?;
+            loaded.push((name, p, fp));
         }
     }
     let candidates: Vec<Candidate> = loaded

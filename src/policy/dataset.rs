@@ -206,8 +206,9 @@ pub fn problem_of(base: &Scene, d: &Draw) -> anyhow::Result<(Problem, Vec<f64>)>
     Ok((problem, f))
 }
 
-/// Scene `k`'s samples: the optimised scene and its perturbed copies.
-fn scene_samples(base: &Scene, cfg: &Config, k: usize) -> anyhow::Result<Vec<Sample>> {
+/// Scene `k`'s samples: the optimised scene and its perturbed copies. This is the unit of work
+/// a machine runs; `powderlab.distributed.map_dataset` runs it as Ray tasks.
+pub fn scene_samples(base: &Scene, cfg: &Config, k: usize) -> anyhow::Result<Vec<Sample>> {
     let spec = spec_of(base)?;
     let d = draw_scene(spec, base, cfg.seed, k);
     let (problem, f) = problem_of(base, &d)?;
@@ -251,14 +252,19 @@ fn scene_samples(base: &Scene, cfg: &Config, k: usize) -> anyhow::Result<Vec<Sam
     Ok(out)
 }
 
-/// Makes (or resumes) the dataset of `base` in `dir`; `progress(done)` hears of each scene.
-/// Scenes run side by side on the rayon pool.
-pub fn generate(
-    base: &Scene,
-    cfg: &Config,
-    dir: &Path,
-    progress: &(dyn Fn(usize) + Sync),
-) -> anyhow::Result<Vec<Sample>> {
+/// Where scene `k`'s samples are kept, and their text there.
+pub fn scene_file(dir: &Path, k: usize) -> std::path::PathBuf {
+    dir.join(format!("scene-{k}.json"))
+}
+
+/// The text [`generate`] keeps for a scene's samples.
+pub fn scene_text(samples: &[Sample]) -> anyhow::Result<String> {
+    Ok(serde_json::to_string(samples)?)
+}
+
+/// Makes `dir` a dataset folder of `cfg`: writes its settings there, or checks that the ones
+/// there are the same (a resumed run, or the Ray path's tasks, must not mix two datasets).
+pub fn claim(dir: &Path, cfg: &Config) -> anyhow::Result<()> {
     crate::util::create_output_dir(dir, "--dir")?;
     let cfg_path = dir.join("dataset-config.json");
     match std::fs::read_to_string(&cfg_path) {
@@ -277,11 +283,23 @@ pub fn generate(
             crate::util::write_atomic(&cfg_path, serde_json::to_string_pretty(cfg)?.as_bytes())?
         }
     }
+    Ok(())
+}
+
+/// Makes (or resumes) the dataset of `base` in `dir`; `progress(done)` hears of each scene.
+/// Scenes run side by side on the rayon pool.
+pub fn generate(
+    base: &Scene,
+    cfg: &Config,
+    dir: &Path,
+    progress: &(dyn Fn(usize) + Sync),
+) -> anyhow::Result<Vec<Sample>> {
+    claim(dir, cfg)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
     let per_scene: Vec<Vec<Sample>> = (0..cfg.scenes)
         .into_par_iter()
         .map(|k| {
-            let path = dir.join(format!("scene-{k}.json"));
+            let path = scene_file(dir, k);
             let kept = std::fs::read_to_string(&path)
                 .ok()
                 .and_then(|t| serde_json::from_str::<Vec<Sample>>(&t).ok());
@@ -290,7 +308,7 @@ pub fn generate(
                 None => {
                     let s = scene_samples(base, cfg, k)
                         .with_context(|| format!("randomised scene {k}"))?;
-                    crate::util::write_atomic(&path, serde_json::to_string(&s)?.as_bytes())?;
+                    crate::util::write_atomic(&path, scene_text(&s)?.as_bytes())?;
                     s
                 }
             };

@@ -9,7 +9,7 @@
 //! - **warm:** CMA-ES from the distilled policy's Θ with a quarter of the budget (rounded up)
 //!   and a smaller first step, [`SIGMA_WARM`].
 //!
-//! Each trial is kept in `dir/scene-J/NAME.json` (a policy's under its file's fingerprint), so
+//! Each trial is kept in `dir/scene-J/NAME.json` (a policy's under its [`Policy::fingerprint`]), so
 //! a killed run resumes and a new policy reruns only its own trials.
 
 use super::dataset::{cost, draw_scene, optimise, problem_of, spec_of, SIGMA_FULL};
@@ -57,7 +57,7 @@ impl SceneEval {
     }
 }
 
-/// A policy to evaluate: its name on the page, the network and its file's fingerprint.
+/// A policy to evaluate: its name on the page, the network and its fingerprint.
 pub struct Candidate<'a> {
     pub name: &'a str,
     pub policy: &'a Policy,

@@ -130,6 +130,24 @@ impl Policy {
         Ok(std::array::from_fn(|i| out[0][i].clamp(-1.0, 1.0)))
     }
 
+    /// A fingerprint of the network: FNV-1a of its layout, its standardisation and every
+    /// weight's bits. (A file's bytes will not do: safetensors writes its metadata map in hash
+    /// order, which differs between processes.)
+    pub fn fingerprint(&self) -> anyhow::Result<String> {
+        let mut text = format!("{}|{}|", self.layout.join(","), self.hidden);
+        let mut push = |v: &[f64]| {
+            for x in v {
+                text.push_str(&format!("{:016x}", x.to_bits()));
+            }
+        };
+        push(&self.x_mean);
+        push(&self.x_std);
+        for var in self.mlp.vars() {
+            push(&var.as_tensor().flatten_all()?.to_vec1::<f64>()?);
+        }
+        Ok(crate::optim::fnv1a(&text))
+    }
+
     /// Writes the network, its standardisation and its layout (atomically).
     pub fn save(&self, path: &Path) -> anyhow::Result<()> {
         let dev = Device::Cpu;

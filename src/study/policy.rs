@@ -37,12 +37,6 @@ pub struct Outcome {
     pub rows: Vec<SceneEval>,
 }
 
-/// The file's fingerprint (FNV-1a of its bytes).
-pub fn fingerprint(path: &Path) -> anyhow::Result<String> {
-    let bytes = std::fs::read(path)?;
-    Ok(crate::optim::fnv1a(&String::from_utf8_lossy(&bytes)))
-}
-
 /// Runs (or resumes) the study of `base` in `dir`; `progress(step, done, of)` hears of it.
 pub fn run(
     base: &Scene,
@@ -64,7 +58,7 @@ pub fn run(
     let (policy, curve) = net::train(&samples, &s.train)?;
     let distilled = dir.join("policy.safetensors");
     policy.save(&distilled)?;
-    let fp = fingerprint(&distilled)?;
+    let fp = policy.fingerprint()?;
     let tuned = Policy::load(&distilled, &features::layout())?;
     let iters = s.finetune.iterations;
     let (iterations, finetune_cost) = tune::finetune_scenes(
@@ -86,7 +80,7 @@ pub fn run(
         Candidate {
             name: "finetuned",
             policy: &tuned,
-            fingerprint: fingerprint(&finetuned)?,
+            fingerprint: tuned.fingerprint()?,
         },
     ];
     let rows = eval::run(base, &s.eval, &dir.join("eval"), &candidates, &|k| {
