@@ -121,3 +121,27 @@ def rollout(
     grad=True. The GIL is released while it runs."""
 
 def version() -> str: ...
+
+def policy_dataset_config(
+    scene: Scene,
+    scenes: int = 36,
+    budget: int = 20,
+    augment: int = 2,
+    augment_steps: int = 1,
+    perturb: float = 0.1,
+    seed: int = 0,
+) -> str:
+    """The settings (JSON) of a policy dataset of ``scene``, as ``powderlab policy dataset``
+    makes them."""
+
+def policy_dataset_claim(dir: str, config: str) -> None:
+    """Makes ``dir`` a folder of the dataset ``config`` (writes or checks its settings)."""
+
+def policy_dataset_scene(scene: Scene, config: str, k: int, threads: int = 1) -> str:
+    """Randomised scene ``k``'s samples, as the JSON the CLI keeps in ``scene-K.json``."""
+
+def policy_dataset_scene_file(dir: str, k: int) -> str:
+    """The path of scene ``k``'s file in ``dir``."""
+
+def policy_dataset_write(scene: Scene, config: str, dir: str) -> str:
+    """Gathers ``dir``'s scene files into ``dataset.safetensors``; returns its path."""

@@ -11,6 +11,9 @@ On a cluster started with ``ray start --head`` on one machine and
 
     results = map_rollouts(scene, thetas, address="auto")
 
+``map_dataset`` makes a policy's dataset (``powderlab policy dataset``) with one task per
+randomised scene, into the same files as the command.
+
 Each task runs one rollout with ``threads`` worker threads (1 by default: Ray spreads the
 tasks over the cores). The results are bitwise those of calling ``powderlab.rollout`` one by
 one: the simulator gives the same bits for any thread count. A task whose worker dies (killed,
@@ -22,7 +25,8 @@ from __future__ import annotations
 
 import os
 import signal
-from typing import Any, Dict, List, Optional, Sequence
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Union
 
 from . import Scene, rollout
 
@@ -80,3 +84,65 @@ def map_rollouts(
     scene_ref = ray.put(scene)
     refs = [task.remote(scene_ref, theta, grad, steps, threads) for theta in thetas]
     return ray.get(refs)
+
+
+def _dataset_scene(scene: Scene, config: str, k: int, threads: int) -> str:
+    from ._powderlab import policy_dataset_scene
+
+    return policy_dataset_scene(scene, config, k, threads)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def map_dataset(
+    scene: Scene,
+    dir: Union[str, Path],
+    scenes: int = 36,
+    budget: int = 20,
+    augment: int = 2,
+    augment_steps: int = 1,
+    perturb: float = 0.1,
+    seed: int = 0,
+    address: Optional[str] = None,
+    threads: int = 1,
+    max_retries: int = 3,
+    **ray_init: Any,
+) -> str:
+    """A policy dataset of ``scene`` (a scene with a ``randomize`` section) in ``dir``, one Ray
+    task per randomised scene; returns the path of ``dir/dataset.safetensors``.
+
+    The arguments are ``powderlab policy dataset``'s options, and the files are the command's:
+    each scene's ``scene-K.json`` is written (atomically) as its task finishes, so a killed run
+    resumes with the scenes still missing, and the command run on the same folder with the
+    same options finds every scene done. A scene is computed the same way wherever it runs, so
+    the files do not depend on how the tasks were spread.
+    """
+    import ray
+
+    from ._powderlab import (
+        policy_dataset_claim,
+        policy_dataset_config,
+        policy_dataset_scene_file,
+        policy_dataset_write,
+    )
+
+    config = policy_dataset_config(scene, scenes, budget, augment, augment_steps, perturb, seed)
+    folder = Path(dir)
+    policy_dataset_claim(str(folder), config)
+    missing = [k for k in range(scenes) if not Path(policy_dataset_scene_file(str(folder), k)).exists()]
+    if missing:
+        if not ray.is_initialized():
+            ray.init(address=address, **ray_init)
+        task = ray.remote(_dataset_scene).options(num_cpus=threads, max_retries=max_retries)
+        scene_ref = ray.put(scene)
+        pending = {task.remote(scene_ref, config, k, threads): k for k in missing}
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                k = pending.pop(ref)
+                _write_atomic(Path(policy_dataset_scene_file(str(folder), k)), ray.get(ref))
+    return policy_dataset_write(scene, config, str(folder))

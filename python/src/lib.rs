@@ -22,6 +22,7 @@ use pyo3::types::{PyDict, PyTuple};
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+mod policy;
 mod simulation;
 
 create_exception!(
@@ -349,6 +350,11 @@ fn _powderlab(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<simulation::Simulation>()?;
     m.add_function(wrap_pyfunction!(rollout, m)?)?;
     m.add_function(wrap_pyfunction!(version, m)?)?;
+    m.add_function(wrap_pyfunction!(policy::policy_dataset_config, m)?)?;
+    m.add_function(wrap_pyfunction!(policy::policy_dataset_claim, m)?)?;
+    m.add_function(wrap_pyfunction!(policy::policy_dataset_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(policy::policy_dataset_scene_file, m)?)?;
+    m.add_function(wrap_pyfunction!(policy::policy_dataset_write, m)?)?;
     m.add("SceneError", m.py().get_type::<SceneError>())?;
     m.add("SimulationError", m.py().get_type::<SimulationError>())?;
     Ok(())
