@@ -88,7 +88,7 @@ pub enum SceneError {
 /// Failures while simulating.
 #[derive(Debug, Error)]
 pub enum SimError {
-    #[error("non-finite value at step {step}, substep {substep}: {fault}; the time step is probably too large for the material or the tool speed (try stability: Auto or more substeps)")]
+    #[error("non-finite value at step {step}, substep {substep}: {fault}; most likely responsible: {suspects} (a time step too large for the material or the tool speed: try stability: Auto or more substeps)", suspects = fault.suspects())]
     NonFinite {
         step: usize,
         substep: usize,

@@ -244,6 +244,21 @@ impl Recorder {
         Ok(())
     }
 
+    /// Flushes the recording and leaves it under its `.partial` name (a run that failed, with
+    /// `--keep-partial`); returns that path.
+    pub fn keep_partial(self) -> anyhow::Result<PathBuf> {
+        self.rec.flush_blocking()?;
+        drop(self.rec);
+        Ok(partial_path(&self.path))
+    }
+
+    /// Drops the recording of a run that failed and removes its `.partial` file.
+    pub fn discard(self) {
+        let _ = self.rec.flush_blocking();
+        drop(self.rec);
+        let _ = std::fs::remove_file(partial_path(&self.path));
+    }
+
     /// Flushes and moves the recording to its final name.
     pub fn finish(self) -> anyhow::Result<()> {
         self.rec.flush_blocking()?;

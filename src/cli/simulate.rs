@@ -28,7 +28,15 @@ pub struct Args {
     /// hour on the reference machine) anyway.
     #[arg(long)]
     force: bool,
+    /// When the run fails mid-way, keep the recording up to the failure (as OUT.partial)
+    /// instead of removing it.
+    #[arg(long)]
+    keep_partial: bool,
 }
+
+/// Fault injection for the tests: set to a step number, the run makes one particle's
+/// velocity NaN after that step, so that a failure mid-run can be tested on a sound scene.
+pub const FAULT_ENV: &str = "POWDERLAB_FAULT_NAN_AT_STEP";
 
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
@@ -39,6 +47,7 @@ pub fn run(a: Args) -> Result<()> {
         threads,
         save_state,
         force,
+        keep_partial,
     } = a;
     // Refuse an unwritable output before the run, not after it.
     if let Some(p) = &out {
@@ -102,17 +111,49 @@ pub fn run(a: Args) -> Result<()> {
     let mut energy = powderlab::metrics::EnergyMonitor::default();
     let mut m = frame_metrics(&mut sim.world, target.as_deref());
     energy.observe(&m);
-    for _ in 0..steps {
-        sim.step()?;
-        m = frame_metrics(&mut sim.world, target.as_deref());
-        energy.observe(&m);
-        #[cfg(feature = "rerun")]
-        if let Some(r) = recorder.as_mut() {
-            r.frame_with(&mut sim.world, &m)?;
+    let fault_at: Option<usize> = std::env::var(FAULT_ENV).ok().and_then(|v| v.parse().ok());
+    let mut run = || -> Result<()> {
+        for step in 0..steps {
+            sim.step()?;
+            if fault_at == Some(step) {
+                if let Some(mut v) = sim
+                    .world
+                    .query::<&mut powderlab::components::Velocity>()
+                    .iter_mut(&mut sim.world)
+                    .next()
+                {
+                    v.0[0].x = f64::NAN;
+                }
+            }
+            m = frame_metrics(&mut sim.world, target.as_deref());
+            energy.observe(&m);
+            #[cfg(feature = "rerun")]
+            if let Some(r) = recorder.as_mut() {
+                r.frame_with(&mut sim.world, &m)?;
+            }
+            pb.inc(1);
         }
-        pb.inc(1);
-    }
+        Ok(())
+    };
+    let outcome = run();
     pb.finish_and_clear();
+    if let Err(e) = outcome {
+        // No half-written output under any name unless asked for.
+        #[cfg(feature = "rerun")]
+        if let Some(r) = recorder {
+            if keep_partial {
+                let kept = r.keep_partial()?;
+                return Err(e.context(format!(
+                    "kept the recording up to the failure in {}",
+                    kept.display()
+                )));
+            }
+            r.discard();
+        }
+        #[cfg(not(feature = "rerun"))]
+        let _ = keep_partial;
+        return Err(e);
+    }
     let wall = start.elapsed().as_secs_f64();
     #[cfg(feature = "rerun")]
     if let Some(r) = recorder {

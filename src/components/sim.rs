@@ -58,6 +58,22 @@ impl fmt::Display for Fault {
     }
 }
 
+impl Fault {
+    /// The scene fields most likely responsible for a non-finite value in this stage.
+    pub fn suspects(&self) -> &'static str {
+        match self.stage {
+            "constitutive" => {
+                "materials.*.youngs_modulus and poisson_ratio (stiffness), simulation.substeps"
+            }
+            "p2g" => "materials.*.youngs_modulus and density, simulation.gravity, simulation.substeps",
+            "g2p" => {
+                "colliders.*.control (tool speed), simulation.gravity, bodies.*.velocity, simulation.substeps"
+            }
+            _ => "bodies.*.velocity, colliders.*.control (tool speed), simulation.dt and substeps",
+        }
+    }
+}
+
 impl Health {
     /// Records a fault unless one is already recorded (the first one wins).
     pub fn report(&mut self, fault: Fault) {
