@@ -49,6 +49,9 @@ struct TrainArgs {
     /// Units in each of the two hidden layers.
     #[arg(long, default_value_t = 64)]
     hidden: usize,
+    /// Leave out samples whose Θ misses its scene's target by more than this (g).
+    #[arg(long, default_value_t = 0.5)]
+    max_label_error_g: f64,
 }
 
 #[derive(clap::Args)]
@@ -196,8 +199,10 @@ fn train_cmd(t: TrainArgs) -> Result<()> {
     let cfg = TrainConfig {
         epochs: t.epochs,
         hidden: t.hidden,
+        max_label_error_g: t.max_label_error_g,
         ..TrainConfig::default()
     };
+    let used = net::usable(&samples, &cfg).len();
     let (policy, curve) = net::train(&samples, &cfg)?;
     let path = t.dir.join("policy.safetensors");
     policy.save(&path)?;
@@ -212,9 +217,10 @@ fn train_cmd(t: TrainArgs) -> Result<()> {
         .map(|p| p.val_mse)
         .fold(f64::INFINITY, f64::min);
     println!(
-        "{}: fitted on {} samples; training MSE {last:.4}, lowest validation MSE {val:.4}",
+        "{}: fitted on {used} of {} samples (those within {} g of their target); training MSE {last:.4}, lowest validation MSE {val:.4}",
         path.display(),
-        samples.len()
+        samples.len(),
+        cfg.max_label_error_g
     );
     Ok(())
 }
