@@ -233,8 +233,14 @@ fn calibrate_writes_a_loadable_fitted_scene_and_resumes_from_its_journal() {
     let p = params::parse(&fitted, &["friction_deg".into()], &[]).unwrap();
     assert_eq!(p[0].value(&fitted), best);
     // The same settings again: every rollout is read back from the journal, the same answer.
-    let (code, err) = powderlab(&args);
+    // Without --quiet it prints its work estimate before it starts.
+    let loud: Vec<&str> = args.iter().copied().filter(|a| *a != "--quiet").collect();
+    let (code, err) = powderlab(&loud);
     assert_eq!(code, 0, "{err}");
+    assert!(
+        err.contains("work: a rollout") && err.contains("11 forward rollouts' worth in all"),
+        "{err}"
+    );
     let again: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(again["best"], summary["best"]);

@@ -183,6 +183,33 @@ pub fn run(a: Args) -> Result<()> {
         let k = cal.params.len() as f64;
         1.0 + 2.0 * k * k
     };
+    if !a.quiet {
+        // What the fit may cost, at the start's values (a stiffer powder tried later may need
+        // more substeps; the stability guard decides per rollout).
+        let mut sim = powderlab::sim::Simulation::new(
+            &scene,
+            &powderlab::sim::SimOptions {
+                threads: a.threads,
+                ..Default::default()
+            },
+        )?;
+        let rollout = powderlab::scene::WorkEstimate {
+            particles: sim.particle_count(),
+            substeps: sim.params().substeps,
+            steps: cal.steps,
+        };
+        let all = a.budget + curvature_cost;
+        let total = powderlab::scene::WorkEstimate {
+            steps: (cal.steps as f64 * all).ceil() as usize,
+            ..rollout
+        };
+        eprintln!(
+            "work: a rollout {}; {all:.0} forward rollouts' worth in all (a gradient counted at its cost): {:.2e} particle-substeps, about {} at that rate",
+            rollout.describe(),
+            total.particle_substeps(),
+            total.duration()
+        );
+    }
     let pb = super::bar((a.budget + curvature_cost).ceil() as u64, a.quiet);
     pb.set_message(a.method.clone());
     let mut spent = 0.0;
