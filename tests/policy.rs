@@ -329,10 +329,41 @@ fn the_commands_run_end_to_end_on_a_small_scene_and_resume() {
         dataset::read(&Path::new(dir).join("dataset.safetensors")).unwrap(),
         samples
     );
+    // Two rollouts per scene solve nothing: every label is kept for this test.
     let out = powderlab(&[
-        "policy", "train", "--dir", dir, "--epochs", "50", "--hidden", "8",
+        "policy",
+        "train",
+        "--dir",
+        dir,
+        "--epochs",
+        "50",
+        "--hidden",
+        "8",
+        "--max-label-error-g",
+        "100",
     ]);
-    assert!(out.contains("fitted on 6 samples"), "{out}");
+    assert!(out.contains("fitted on 6 of 6 samples"), "{out}");
+    // The labels searched again from the first fit's Θ, and the fit to them.
+    let out = powderlab(&["policy", "anchor", s, "--dir", dir, "--budget", "2"]);
+    assert!(out.contains("3 scenes"), "{out}");
+    let anchored = dataset::read(&Path::new(dir).join("anchored.safetensors")).unwrap();
+    assert_eq!(anchored.len(), 3);
+    assert!(anchored.iter().all(|a| a.copy == 0 && a.rollouts >= 4.0));
+    let out = powderlab(&[
+        "policy",
+        "train",
+        "--dir",
+        dir,
+        "--data",
+        "anchored.safetensors",
+        "--epochs",
+        "50",
+        "--hidden",
+        "8",
+        "--max-label-error-g",
+        "100",
+    ]);
+    assert!(out.contains("fitted on 3 of 3 samples"), "{out}");
     let out = powderlab(&[
         "policy",
         "finetune",

@@ -24,6 +24,10 @@ enum Sub {
     /// (CMA-ES), add perturbed copies refined by Gauss–Newton steps along the adjoint
     /// gradient, and write DIR/dataset.safetensors. Resumes after a kill.
     Dataset(DatasetArgs),
+    /// Search each optimised scene of DIR/dataset.safetensors again from the Θ that
+    /// DIR/policy.safetensors gives it, so that the labels lie in one basin; writes DIR/anchored.safetensors (train on it
+    /// with `policy train --data anchored.safetensors`). Resumes after a kill.
+    Anchor(AnchorArgs),
     /// Fit the MLP from features to Θ on DIR/dataset.safetensors (candle, full-batch AdamW);
     /// writes DIR/policy.safetensors and DIR/train.csv.
     Train(TrainArgs),
@@ -40,9 +44,23 @@ enum Sub {
 }
 
 #[derive(clap::Args)]
+struct AnchorArgs {
+    /// The scene the dataset was made from.
+    scene: PathBuf,
+    #[arg(long, default_value = "runs/policy")]
+    dir: PathBuf,
+    /// Forward rollouts per scene.
+    #[arg(long, default_value_t = 6)]
+    budget: usize,
+}
+
+#[derive(clap::Args)]
 struct TrainArgs {
     #[arg(long, default_value = "runs/policy")]
     dir: PathBuf,
+    /// The dataset file in DIR to fit.
+    #[arg(long, default_value = "dataset.safetensors")]
+    data: String,
     /// Full-batch AdamW steps.
     #[arg(long, default_value_t = 3000)]
     epochs: usize,
@@ -131,6 +149,7 @@ struct DatasetArgs {
 pub fn run(a: Args) -> Result<()> {
     match a.command {
         Sub::Dataset(d) => dataset_cmd(d),
+        Sub::Anchor(a) => anchor_cmd(a),
         Sub::Train(t) => train_cmd(t),
         Sub::Finetune(f) => finetune_cmd(f),
         Sub::Eval(e) => eval_cmd(e),
@@ -194,8 +213,42 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
     Ok(())
 }
 
+fn anchor_cmd(a: AnchorArgs) -> Result<()> {
+    let scene = Scene::load(&a.scene)?;
+    dataset::spec_of(&scene)?;
+    let samples = dataset::read(&a.dir.join("dataset.safetensors"))?;
+    let policy = Policy::load(&a.dir.join("policy.safetensors"), &layout())?;
+    let cfg = powderlab::policy::anchor::AnchorConfig {
+        budget: a.budget,
+        ..Default::default()
+    };
+    let n = samples.iter().filter(|s| s.copy == 0).count();
+    let pb = super::bar(n as u64, false);
+    let anchored = powderlab::policy::anchor::anchor(
+        &scene,
+        &policy,
+        &samples,
+        &cfg,
+        &a.dir.join(format!("anchor-{}", policy.fingerprint()?)),
+        &|k| pb.set_position(k as u64),
+    )?;
+    pb.finish_and_clear();
+    let path = a.dir.join("anchored.safetensors");
+    dataset::write(&path, &anchored)?;
+    let kept = anchored
+        .iter()
+        .filter(|x| {
+            samples
+                .iter()
+                .any(|y| y.scene == x.scene && y.copy == 0 && y.theta != x.theta)
+        })
+        .count();
+    println!("{}: {n} scenes, {kept} with a new label", path.display());
+    Ok(())
+}
+
 fn train_cmd(t: TrainArgs) -> Result<()> {
-    let samples = dataset::read(&t.dir.join("dataset.safetensors"))?;
+    let samples = dataset::read(&t.dir.join(&t.data))?;
     let cfg = TrainConfig {
         epochs: t.epochs,
         hidden: t.hidden,

@@ -621,6 +621,7 @@ fn policy_cmd(a: Args) -> Result<()> {
             seed: 0,
         },
         train: net::TrainConfig::default(),
+        anchor: powderlab::policy::anchor::AnchorConfig::default(),
         finetune: reinforce::ReinforceConfig::default(),
         eval: eval::EvalConfig {
             scenes: 20,
@@ -646,7 +647,12 @@ fn policy_cmd(a: Args) -> Result<()> {
         &powderlab::study::optimizers::machine(),
     );
     powderlab::util::create_output_dir(&a.results, "--results")?;
-    policy::figure(&a.results.join("policy.svg"), &o.curve, &o.iterations)?;
+    policy::figure(
+        &a.results.join("policy.svg"),
+        &o.first_curve,
+        &o.curve,
+        &o.iterations,
+    )?;
     powderlab::util::write_atomic(&a.results.join("policy.md"), md.as_bytes())?;
     print_page(
         &a,
