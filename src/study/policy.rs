@@ -154,7 +154,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         md,
         "# A skill policy over randomised scenes (seed B's Sim2Real step)\n"
     );
-    let _ = writeln!(md, "Regenerate: `{command}` (about 80 min on this machine from scratch; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
+    let _ = writeln!(md, "Regenerate: `{command}` (about two hours on this machine from scratch, about half of it the dataset; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
     let _ = writeln!(md, "Machine: {machine}.\n");
     let r = scene.randomize.as_ref();
     let range = |v: Option<(f64, f64)>, scale: f64, unit: &str| {
