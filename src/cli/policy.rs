@@ -356,8 +356,6 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
         if err.is_empty() {
             continue;
         }
-        let mut sorted = err.clone();
-        sorted.sort_by(f64::total_cmp);
         let ro: f64 = rows
             .iter()
             .filter_map(|r| r.get(m))
@@ -367,7 +365,7 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
         md += &format!(
             "| {m} | {:.3} | {:.3} | {ro:.1} |\n",
             err.iter().sum::<f64>() / err.len() as f64,
-            sorted[sorted.len() / 2],
+            powderlab::optim::rmsprop::median(&err),
         );
     }
     powderlab::util::write_atomic(&e.dir.join("eval.md"), md.as_bytes())?;

@@ -332,10 +332,9 @@ fn matrix(rows: &[Vec<f64>], width: usize) -> anyhow::Result<candle_core::Tensor
 }
 
 /// Writes `samples` to a safetensors file (atomically): `features [n, F]`, `theta [n, 5]`,
-/// `params [n, 7]` (the draws), `loss`, `indicator`, `start_loss`, `rollouts`, `particle_substeps`,
-/// `scene`, `copy` and `packing_seed` (as f64; seeds as their bits' f64 would lose them, so
-/// `packing_seed` is stored as two u32 halves in `[n, 2]`), with the feature and parameter
-/// names in the metadata.
+/// `params [n, 7]` (the draws), `packing_seed [n, 2]` (its two 32-bit halves, which an f64
+/// holds exactly), and `loss`, `indicator`, `start_loss`, `rollouts`, `particle_substeps`,
+/// `scene` and `copy` as `[n, 1]`; the feature and parameter names go in the metadata.
 pub fn write(path: &Path, samples: &[Sample]) -> anyhow::Result<()> {
     let names = layout();
     let f = samples.first().map_or(names.len(), |s| s.features.len());

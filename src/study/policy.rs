@@ -7,6 +7,7 @@
 //! study resumes; the fit is deterministic and seconds long, so it is simply redone.
 
 use super::optimizers::wilcoxon_less;
+use crate::optim::rmsprop::median;
 use crate::policy::anchor::{self, AnchorConfig};
 use crate::policy::dataset::{self, Sample};
 use crate::policy::eval::{self, Candidate, EvalConfig, SceneEval};
@@ -120,22 +121,11 @@ pub fn run(
 }
 
 fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len().max(1) as f64
+    super::planning::mean_std(v).0
 }
 
 fn std(v: &[f64]) -> f64 {
-    let m = mean(v);
-    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len().max(2) - 1) as f64).sqrt()
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    match s.len() {
-        0 => f64::NAN,
-        n if n % 2 == 1 => s[n / 2],
-        n => 0.5 * (s[n / 2 - 1] + s[n / 2]),
-    }
+    super::planning::mean_std(v).1
 }
 
 fn p_text(p: Option<f64>) -> String {
