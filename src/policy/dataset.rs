@@ -413,7 +413,7 @@ pub fn write(path: &Path, samples: &[Sample]) -> anyhow::Result<()> {
 pub fn read(path: &Path) -> anyhow::Result<Vec<Sample>> {
     let bytes = std::fs::read(path)
         .with_context(|| format!("{}: cannot read the dataset", path.display()))?;
-    let (meta, tensors) = super::net::open(path, &bytes, FORMAT)?;
+    let (meta, tensors) = super::file::open(path, &bytes, FORMAT)?;
     let get = |name: &str| -> anyhow::Result<Vec<Vec<f64>>> {
         let t = tensors.get(name).with_context(|| {
             format!(

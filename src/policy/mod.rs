@@ -4,6 +4,7 @@
 //! - [`dataset`]: randomised scenes with their optimised Θ\*, and seed B's augmentation;
 //! - [`anchor`]: the labels searched again from the distilled policy's Θ, so that they lie in
 //!   one basin;
+//! - [`file`]: reading their safetensors files;
 //! - [`net`]: the MLP from features to Θ (candle), its fit and its safetensors file;
 //! - [`reinforce`]: the fine-tune, REINFORCE with a baseline, and [`tune`], its episodes as
 //!   rollouts rewarded with −L;
@@ -13,6 +14,7 @@ pub mod anchor;
 pub mod dataset;
 pub mod eval;
 pub mod features;
+pub mod file;
 pub mod net;
 pub mod reinforce;
 pub mod tune;

@@ -5,7 +5,7 @@ use super::dataset::Sample;
 use crate::optim::mlp::Mlp;
 use crate::util::SplitMix64;
 use anyhow::Context;
-use candle_core::{DType, Device, Tensor, Var};
+use candle_core::{Device, Tensor, Var};
 use candle_nn::{AdamW, Optimizer, ParamsAdamW};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -179,7 +179,7 @@ impl Policy {
     pub fn load(path: &Path, expected: &[String]) -> anyhow::Result<Policy> {
         let bytes = std::fs::read(path)
             .with_context(|| format!("{}: cannot read the policy file", path.display()))?;
-        let (meta, t) = open(path, &bytes, FORMAT)?;
+        let (meta, t) = super::file::open(path, &bytes, FORMAT)?;
         let layout: Vec<String> = meta
             .get("features")
             .map(|s| s.split(',').map(String::from).collect())
@@ -229,32 +229,6 @@ impl Policy {
             layout,
         })
     }
-}
-
-/// A safetensors file's metadata and tensors (f64, on the CPU), refusing another `format`.
-pub fn open(
-    path: &Path,
-    bytes: &[u8],
-    format: &str,
-) -> anyhow::Result<(HashMap<String, String>, HashMap<String, Tensor>)> {
-    let bad = |what: String| anyhow::anyhow!("{}: {what}", path.display());
-    let (_, m) = safetensors::SafeTensors::read_metadata(bytes)
-        .map_err(|e| bad(format!("not a safetensors file ({e})")))?;
-    let meta = m.metadata().clone().unwrap_or_default();
-    let found = meta.get("format").map_or("none", String::as_str);
-    if found != format {
-        return Err(bad(format!(
-            "field metadata.format: '{found}', expected '{format}'; write it with the matching \
-             `powderlab policy` command"
-        )));
-    }
-    let t = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
-        .map_err(|e| bad(format!("reading its tensors: {e}")))?;
-    let t = t
-        .into_iter()
-        .map(|(k, v)| Ok((k, v.to_dtype(DType::F64)?)))
-        .collect::<candle_core::Result<_>>()?;
-    Ok((meta, t))
 }
 
 /// Mean and spread of each column.

@@ -1,0 +1,32 @@
+//! Reading the policy's safetensors files: their metadata and tensors, refusing a file of
+//! another kind by its `format` tag.
+
+use candle_core::{DType, Device, Tensor};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// A safetensors file's metadata and tensors (f64, on the CPU), refusing another `format`.
+pub fn open(
+    path: &Path,
+    bytes: &[u8],
+    format: &str,
+) -> anyhow::Result<(HashMap<String, String>, HashMap<String, Tensor>)> {
+    let bad = |what: String| anyhow::anyhow!("{}: {what}", path.display());
+    let (_, m) = safetensors::SafeTensors::read_metadata(bytes)
+        .map_err(|e| bad(format!("not a safetensors file ({e})")))?;
+    let meta = m.metadata().clone().unwrap_or_default();
+    let found = meta.get("format").map_or("none", String::as_str);
+    if found != format {
+        return Err(bad(format!(
+            "field metadata.format: '{found}', expected '{format}'; write it with the matching \
+             `powderlab policy` command"
+        )));
+    }
+    let t = candle_core::safetensors::load_buffer(bytes, &Device::Cpu)
+        .map_err(|e| bad(format!("reading its tensors: {e}")))?;
+    let t = t
+        .into_iter()
+        .map(|(k, v)| Ok((k, v.to_dtype(DType::F64)?)))
+        .collect::<candle_core::Result<_>>()?;
+    Ok((meta, t))
+}
