@@ -50,6 +50,18 @@ pub struct Args {
     /// optimizers, refine, directions: where the page goes.
     #[arg(long, default_value = "docs/results")]
     results: PathBuf,
+    /// reliability: mutated scenes to run through `simulate`.
+    #[arg(long, default_value_t = 10_000)]
+    cases: usize,
+    /// reliability: address-space cap per process, in GB.
+    #[arg(long, default_value_t = 8.0)]
+    cap_gb: f64,
+    /// reliability: wall-clock limit per process, in seconds.
+    #[arg(long, default_value_t = 20.0)]
+    timeout_s: f64,
+    /// reliability: processes side by side.
+    #[arg(long, default_value_t = 2)]
+    jobs: usize,
     /// Keep the configurations already finished in OUT/results.json.
     #[arg(long)]
     resume: bool,
@@ -124,9 +136,12 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "policy" {
         return policy_cmd(a);
     }
+    if a.study == "reliability" {
+        return reliability_cmd(a);
+    }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration, demonstration or planning",
+            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration, demonstration, planning, policy or reliability",
             a.study
         );
     }
@@ -299,6 +314,7 @@ fn landscape_cmd(a: Args) -> Result<()> {
         .num_threads(threads)
         .build_global()
         .context("starting the worker threads")?;
+    super::announce_work(&scene, n as f64)?;
     let thetas = landscape::sobol_thetas(n, 0);
     let pb = super::bar(n as u64, a.json);
     pb.set_position(landscape::load(&a.out)?.len().min(n) as u64);
@@ -367,6 +383,9 @@ fn optimizers_cmd(a: Args) -> Result<()> {
             .collect::<Vec<_>>()
             .join(",")
     );
+    for t in &tasks {
+        super::announce_work(t, (a.seeds * a.budget * methods.len()) as f64)?;
+    }
     let start = Instant::now();
     let md = study::optimizers::run(&study::optimizers::StudyOptions {
         tasks,
@@ -436,6 +455,7 @@ fn refine_cmd(a: Args) -> Result<()> {
     let (scene, problem, unit) = skill_problem(&a, "scenes/precise_dosing.ron")?;
     // At most: trust's rollouts depend on its accepted steps, and never pass the budget.
     let per_seed = 3 * a.budget + refine::gradient_rollouts(a.budget);
+    super::announce_work(&scene, (a.knots.len() * a.seeds * 4 * a.budget) as f64)?;
     let pb = super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.json);
     let pb2 = pb.clone();
     let store = refine::Store::open(&a.out.join("refine"), Box::new(move || pb2.inc(1)))?;
@@ -674,6 +694,12 @@ fn calibration_cmd(a: Args) -> Result<()> {
     let budget = a.budget as f64;
     let runs = calibration::CASES.len() * 5 * a.seeds * 2;
     let total = runs as f64 * budget + 2.0 * budget + 6.0 * 3.4;
+    for case in &calibration::CASES {
+        super::announce_work(
+            std::path::Path::new(case.scene),
+            total / calibration::CASES.len() as f64,
+        )?;
+    }
     let pb = super::bar(total.ceil() as u64, a.json);
     let pb2 = pb.clone();
     let done = std::sync::Mutex::new(0.0f64);
@@ -748,4 +774,51 @@ fn print_page(a: &Args, md: &str, start: Instant, wrote: &str, extra: serde_json
         print!("{md}");
         eprintln!("{wall_s:.0} s; wrote {wrote} to {}", a.results.display());
     }
+}
+
+/// `study reliability`: `simulate` on mutated scenes under a memory cap and a timeout; writes
+/// docs/results/reliability.md. Resumes from OUT/reliability/cases.jsonl.
+fn reliability_cmd(a: Args) -> Result<()> {
+    use powderlab::study::reliability;
+    let cfg = reliability::Config {
+        cases: a.cases,
+        cap_bytes: (a.cap_gb * (1u64 << 30) as f64) as u64,
+        timeout_s: a.timeout_s,
+        jobs: a.jobs,
+    };
+    if !(a.cap_gb > 0.0 && a.timeout_s > 0.0 && a.cases > 0 && a.jobs > 0) {
+        bail!("--cases, --cap-gb, --timeout-s and --jobs must be positive");
+    }
+    let exe = std::env::current_exe().context("cannot find this executable")?;
+    let dir = a.out.join("reliability");
+    let pb = super::bar(cfg.cases as u64, a.json);
+    let start = Instant::now();
+    let records = reliability::run(&exe, std::path::Path::new("."), &dir, &cfg, &|k, n| {
+        pb.set_length(n as u64);
+        pb.set_position(k as u64);
+    })?;
+    pb.finish_and_clear();
+    let command = format!(
+        "powderlab study reliability --cases {} --cap-gb {} --timeout-s {} --jobs {}",
+        cfg.cases, a.cap_gb, a.timeout_s, cfg.jobs
+    );
+    let md = reliability::report(
+        &records,
+        &cfg,
+        &command,
+        &powderlab::study::optimizers::machine(),
+    );
+    let page = a.results.join("reliability.md");
+    std::fs::create_dir_all(&a.results)
+        .with_context(|| format!("cannot create {}", a.results.display()))?;
+    powderlab::util::write_atomic(&page, md.as_bytes())
+        .with_context(|| format!("writing {}", page.display()))?;
+    let problems = records.iter().filter(|r| r.problem.is_some()).count();
+    eprintln!(
+        "{} cases in {:.0} s, {problems} breaking the acceptance; wrote {}",
+        records.len(),
+        start.elapsed().as_secs_f64(),
+        page.display()
+    );
+    Ok(())
 }

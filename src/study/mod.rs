@@ -31,6 +31,7 @@ pub mod plot;
 pub mod policy;
 pub mod push;
 pub mod refine;
+pub mod reliability;
 pub mod warm_start;
 
 pub use analysis::*;
