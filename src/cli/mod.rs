@@ -51,6 +51,30 @@ pub fn bar(len: u64, quiet: bool) -> ProgressBar {
     pb
 }
 
+/// Prints, before a study starts, the work of `rollouts` forward rollouts' worth of `scene` at
+/// its own horizon: what `simulate` prints for one run, and the total at the reference rate.
+/// A rollout of a skill scene runs to a horizon that depends on Θ, so this is about the size.
+pub fn announce_work(scene: &std::path::Path, rollouts: f64) -> anyhow::Result<()> {
+    let mut sim = Simulation::from_file(scene, &powderlab::sim::SimOptions::default())?;
+    let one = powderlab::scene::WorkEstimate {
+        particles: sim.particle_count(),
+        substeps: sim.params().substeps,
+        steps: sim.horizon,
+    };
+    let all = powderlab::scene::WorkEstimate {
+        steps: (sim.horizon as f64 * rollouts).round() as usize,
+        ..one
+    };
+    eprintln!(
+        "work: {}: {rollouts:.0} forward rollouts' worth of {}; in all {:.2e} particle-substeps, about {} at that rate",
+        scene.display(),
+        one.describe(),
+        all.particle_substeps(),
+        all.duration()
+    );
+    Ok(())
+}
+
 /// Prints what the stability guard found and whether it raised the substeps.
 pub fn describe_stability(sim: &Simulation) {
     let s = &sim.stability;
