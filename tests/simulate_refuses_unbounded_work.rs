@@ -97,3 +97,29 @@ fn optimize_prints_its_estimate() {
     assert!(err.contains("9 forward rollouts' worth in all"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_grid_without_particles_still_announces_its_work() {
+    // Found by `study reliability` (policy_dosing, case 66): a spoon 15 m thick displaces
+    // every grain, the skill's horizon grows to 3,935 steps and the guard raises the substeps
+    // to 198. The run is all grid work, about a minute, and the estimate must say so rather
+    // than "0 s".
+    let text = std::fs::read_to_string(common::scene_path("policy_dosing.ron"))
+        .unwrap()
+        .replace("thickness: 0.0015", "thickness: 1.5e1");
+    let path = std::env::temp_dir().join(format!("powderlab-grid-work-{}.ron", std::process::id()));
+    std::fs::write(&path, text).unwrap();
+    let mut sim =
+        powderlab::sim::Simulation::from_file(&path, &powderlab::sim::SimOptions::default())
+            .unwrap();
+    std::fs::remove_file(&path).ok();
+    assert_eq!(sim.particle_count(), 0);
+    let horizon = sim.horizon;
+    let work = sim.work(horizon);
+    assert!(work.seconds() > 30.0, "{}", work.describe());
+    assert!(
+        work.describe().contains("grid nodes"),
+        "{}",
+        work.describe()
+    );
+}

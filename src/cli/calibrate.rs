@@ -193,11 +193,7 @@ pub fn run(a: Args) -> Result<()> {
                 ..Default::default()
             },
         )?;
-        let rollout = powderlab::scene::WorkEstimate {
-            particles: sim.particle_count(),
-            substeps: sim.params().substeps,
-            steps: cal.steps,
-        };
+        let rollout = sim.work(cal.steps);
         let all = a.budget + curvature_cost;
         let total = powderlab::scene::WorkEstimate {
             steps: (cal.steps as f64 * all).ceil() as usize,

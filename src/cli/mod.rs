@@ -56,11 +56,7 @@ pub fn bar(len: u64, quiet: bool) -> ProgressBar {
 /// A rollout of a skill scene runs to a horizon that depends on Θ, so this is about the size.
 pub fn announce_work(scene: &std::path::Path, rollouts: f64) -> anyhow::Result<()> {
     let mut sim = Simulation::from_file(scene, &powderlab::sim::SimOptions::default())?;
-    let one = powderlab::scene::WorkEstimate {
-        particles: sim.particle_count(),
-        substeps: sim.params().substeps,
-        steps: sim.horizon,
-    };
+    let one = sim.work(sim.horizon);
     let all = powderlab::scene::WorkEstimate {
         steps: (sim.horizon as f64 * rollouts).round() as usize,
         ..one

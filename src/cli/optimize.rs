@@ -252,11 +252,7 @@ pub fn run(args: Args) -> Result<()> {
             }
             _ => sim.horizon,
         };
-        let rollout = powderlab::scene::WorkEstimate {
-            particles: sim.particle_count(),
-            substeps: sim.params().substeps,
-            steps: longest,
-        };
+        let rollout = sim.work(longest);
         let all = settings.forward_rollouts();
         let total = powderlab::scene::WorkEstimate {
             steps: (longest as f64 * all).round() as usize,

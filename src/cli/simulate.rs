@@ -66,11 +66,7 @@ pub fn run(a: Args) -> Result<()> {
     super::describe_stability(&sim);
     let steps = steps.unwrap_or(sim.horizon);
     let n = sim.particle_count();
-    let work = powderlab::scene::WorkEstimate {
-        particles: n,
-        substeps: sim.params().substeps,
-        steps,
-    };
+    let work = sim.work(steps);
     eprintln!("work: {}", work.describe());
     if work.over_limit() && !force {
         anyhow::bail!(

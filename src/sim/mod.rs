@@ -215,6 +215,17 @@ impl Simulation {
         q.iter(&self.world).map(|x| x.0.len()).sum()
     }
 
+    /// The work of `steps` steps at the current substeps, particles and grid (what `simulate`
+    /// prints before it starts).
+    pub fn work(&mut self, steps: usize) -> crate::scene::WorkEstimate {
+        crate::scene::WorkEstimate {
+            particles: self.particle_count(),
+            nodes: self.world.resource::<crate::components::Grid>().mass.len(),
+            substeps: self.params().substeps,
+            steps,
+        }
+    }
+
     /// Poses of every collider, in scene order: (name, kind, shape, pose).
     pub fn collider_poses(&mut self) -> Vec<(String, ColliderKind, Shape, Pose)> {
         collider_poses(&mut self.world)
