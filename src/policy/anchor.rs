@@ -58,12 +58,10 @@ pub fn anchor(
         .filter(|s| s.copy == 0)
         .map(|s| {
             let path = dir.join(format!("scene-{}.json", s.scene));
-            let kept: Option<Sample> = std::fs::read_to_string(&path)
-                .ok()
-                .and_then(|t| serde_json::from_str(&t).ok());
-            let out = match kept {
-                Some(k) => k,
-                None => {
+            let out = super::file::kept(
+                &path,
+                |_: &Sample| true,
+                || {
                     let (problem, _) = problem_of(base, &s.draw)?;
                     let x0 = policy.act(&s.features)?;
                     let r = optimise(
@@ -82,10 +80,9 @@ pub fn anchor(
                         a.loss = r.best.loss;
                         a.indicator = r.best.indicator;
                     }
-                    crate::util::write_atomic(&path, serde_json::to_string(&a)?.as_bytes())?;
-                    a
-                }
-            };
+                    Ok(a)
+                },
+            )?;
             progress(done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1);
             Ok(out)
         })

@@ -300,18 +300,11 @@ pub fn generate(
         .into_par_iter()
         .map(|k| {
             let path = scene_file(dir, k);
-            let kept = std::fs::read_to_string(&path)
-                .ok()
-                .and_then(|t| serde_json::from_str::<Vec<Sample>>(&t).ok());
-            let samples = match kept {
-                Some(s) => s,
-                None => {
-                    let s = scene_samples(base, cfg, k)
-                        .with_context(|| format!("randomised scene {k}"))?;
-                    crate::util::write_atomic(&path, scene_text(&s)?.as_bytes())?;
-                    s
-                }
-            };
+            let samples = super::file::kept(
+                &path,
+                |_: &Vec<Sample>| true,
+                || scene_samples(base, cfg, k).with_context(|| format!("randomised scene {k}")),
+            )?;
             progress(done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1);
             Ok(samples)
         })

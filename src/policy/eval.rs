@@ -121,19 +121,6 @@ fn searched(
     })
 }
 
-/// The trial kept in `path`, or `make`'s, written there.
-fn kept(path: &Path, make: impl FnOnce() -> anyhow::Result<Trial>) -> anyhow::Result<Trial> {
-    if let Some(t) = std::fs::read_to_string(path)
-        .ok()
-        .and_then(|s| serde_json::from_str(&s).ok())
-    {
-        return Ok(t);
-    }
-    let t = make()?;
-    crate::util::write_atomic(path, serde_json::to_string(&t)?.as_bytes())?;
-    Ok(t)
-}
-
 /// Runs (or resumes) the comparison in `dir`. Without candidates it runs only the optimiser
 /// and random Θ, which need no policy. `progress(done)` hears of each finished scene.
 pub fn run(
@@ -170,34 +157,44 @@ pub fn run(
             let sd = dir.join(format!("scene-{j}"));
             std::fs::create_dir_all(&sd)?;
             let mut trials = vec![
-                kept(&sd.join("optimiser.json"), || {
-                    searched(
-                        &problem,
-                        "optimiser",
-                        problem.scene_theta(),
-                        SIGMA_FULL,
-                        cfg.budget,
-                        1_000_000 + j as u64,
-                    )
-                })?,
-                kept(&sd.join("random.json"), || {
-                    let mut rng = SplitMix64(0x5EED_0000 ^ j as u64);
-                    single(
-                        &problem,
-                        "random",
-                        std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0)),
-                    )
-                })?,
+                super::file::kept(
+                    &sd.join("optimiser.json"),
+                    |_| true,
+                    || {
+                        searched(
+                            &problem,
+                            "optimiser",
+                            problem.scene_theta(),
+                            SIGMA_FULL,
+                            cfg.budget,
+                            1_000_000 + j as u64,
+                        )
+                    },
+                )?,
+                super::file::kept(
+                    &sd.join("random.json"),
+                    |_| true,
+                    || {
+                        let mut rng = SplitMix64(0x5EED_0000 ^ j as u64);
+                        single(
+                            &problem,
+                            "random",
+                            std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0)),
+                        )
+                    },
+                )?,
             ];
             for (k, c) in candidates.iter().enumerate() {
                 let theta = c.policy.act(&f)?;
-                trials.push(kept(
+                trials.push(super::file::kept(
                     &sd.join(format!("{}-{}.json", c.name, c.fingerprint)),
+                    |_| true,
                     || single(&problem, c.name, theta),
                 )?);
                 if k == 0 {
-                    trials.push(kept(
+                    trials.push(super::file::kept(
                         &sd.join(format!("warm-{}.json", c.fingerprint)),
+                        |_| true,
                         || {
                             searched(
                                 &problem,

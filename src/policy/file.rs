@@ -1,5 +1,5 @@
-//! Reading the policy's safetensors files: their metadata and tensors, refusing a file of
-//! another kind by its `format` tag.
+//! The policy's files: its safetensors files (metadata and tensors, refusing a file of another
+//! kind by its `format` tag) and the JSON pieces each long step keeps so that it resumes.
 
 use candle_core::{DType, Device, Tensor};
 use std::collections::HashMap;
@@ -29,4 +29,25 @@ pub fn open(
         .map(|(k, v)| Ok((k, v.to_dtype(DType::F64)?)))
         .collect::<candle_core::Result<_>>()?;
     Ok((meta, t))
+}
+
+/// The value kept as JSON in `path` when it reads back and `valid` accepts it; otherwise
+/// `make`'s, written there atomically. Every long step of the policy (the dataset's scenes, the
+/// anchored labels, the fine-tune's episodes, the evaluation's trials) keeps its pieces this
+/// way, so a rerun after a kill redoes only the piece it was working on.
+pub fn kept<T: serde::Serialize + serde::de::DeserializeOwned>(
+    path: &Path,
+    valid: impl FnOnce(&T) -> bool,
+    make: impl FnOnce() -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
+    if let Some(t) = std::fs::read_to_string(path)
+        .ok()
+        .and_then(|s| serde_json::from_str::<T>(&s).ok())
+        .filter(|t| valid(t))
+    {
+        return Ok(t);
+    }
+    let t = make()?;
+    crate::util::write_atomic(path, serde_json::to_string(&t)?.as_bytes())?;
+    Ok(t)
 }

@@ -34,12 +34,10 @@ pub fn finetune_scenes(
     let spent = std::sync::Mutex::new(0.0);
     let reward = |it: usize, slot: usize, ctx: usize, theta: [f64; 5]| -> anyhow::Result<f64> {
         let path = dir.join(format!("episode-{it}-{slot}.json"));
-        let kept: Option<Episode> = std::fs::read_to_string(&path)
-            .ok()
-            .and_then(|t| serde_json::from_str(&t).ok());
-        let e = match kept {
-            Some(e) if e.context == ctx && e.theta == theta => e,
-            _ => {
+        let e = super::file::kept(
+            &path,
+            |e: &Episode| e.context == ctx && e.theta == theta,
+            || {
                 let (problem, _) = problem_of(base, &samples[ctx].draw)?;
                 let o = problem.evaluate(theta, false, true)?;
                 let e = Episode {
@@ -48,10 +46,9 @@ pub fn finetune_scenes(
                     reward: -o.loss,
                     particle_substeps: super::dataset::cost(&o),
                 };
-                crate::util::write_atomic(&path, serde_json::to_string(&e)?.as_bytes())?;
-                e
-            }
-        };
+                Ok(e)
+            },
+        )?;
         *spent.lock().expect("lock") += e.particle_substeps;
         Ok(e.reward)
     };
