@@ -86,7 +86,9 @@ impl Scene {
 pub const MAX_ECHO: usize = 80;
 
 /// `text` with every run of name characters longer than [`MAX_ECHO`] cut to its start and a
-/// count, and the whole cut at four times that: a 10 MB field name is not echoed to stderr.
+/// count, control characters escaped (`\n`: a name or value taken from a damaged file can
+/// span lines, and a refusal is one line), and the whole cut at four times that: a 10 MB field
+/// name is not echoed to stderr.
 pub fn bounded(text: &str) -> String {
     bounded_to(text, 4 * MAX_ECHO)
 }
@@ -110,7 +112,11 @@ fn bounded_to(text: &str, total: usize) -> String {
             }
             run = 0;
         }
-        out.push(c);
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
     }
     if cut > 0 {
         out.push_str(&format!("… ({} characters)", run));
@@ -355,6 +361,13 @@ mod tests {
             "{cut}"
         );
         assert_eq!(bounded("field `dx`"), "field `dx`");
+        // Found by the AFL++ target: a name taken from a damaged file ran into a comment on the
+        // next line, and the refusal took two lines.
+        assert_eq!(
+            bounded("materials.a\n// sand.poisson_ratio"),
+            "materials.a\\n// sand.poisson_ratio"
+        );
+        assert_eq!(bounded("a\r\tb\u{1b}"), "a\\r\\tb\\u{1b}");
     }
 
     #[test]
