@@ -499,6 +499,10 @@ pub fn report(records: &[Record], cfg: &Config, command: &str, machine: &str) ->
             rs.iter().filter(|r| r.problem.is_some()).count()
         );
     }
+    let _ = writeln!(
+        md,
+        "\n## Longer and deeper runs\n\nThe CI test `tests/scene_fuzz.rs` puts 2,500 of these mutations through parse, validate and prepare (no simulation) in about a second, with an allocation counter. For long runs the loader has a coverage-guided AFL++ target in `fuzz/`, which holds the same invariants (no panic, a refusal of one line naming the file):\n\n```sh\ncargo install cargo-afl\ncd fuzz && cargo afl build --release\nAFL_SKIP_CPUFREQ=1 cargo afl fuzz -i ../scenes -o out target/release/scene\n```\n\nAFL keeps any input that breaks an invariant under `fuzz/out/default/crashes/`."
+    );
     if !problems.is_empty() {
         let _ = writeln!(md, "\n## Cases that break the acceptance\n");
         let _ = writeln!(
