@@ -430,10 +430,7 @@ fn collider_outside_the_domain() {
 fn a_value_spanning_lines_is_echoed_on_one_line() {
     // Found by the AFL++ target (`fuzz/`): a string may hold a newline, and the refusal that
     // echoed it took two lines.
-    let msg = error_of(&GOOD.replace(
-        r#"material: "sand""#,
-        "material: \"sa\n// a comment\nnd\"",
-    ));
+    let msg = error_of(&GOOD.replace(r#"material: "sand""#, "material: \"sa\n// a comment\nnd\""));
     assert!(msg.contains(r"sa\n// a comment\nnd"), "{msg}");
     assert!(msg.contains("field `bodies[0].material`"), "{msg}");
 }
