@@ -195,10 +195,7 @@ pub fn run(a: Args) -> Result<()> {
         )?;
         let rollout = sim.work(cal.steps);
         let all = a.budget + curvature_cost;
-        let total = powderlab::scene::WorkEstimate {
-            steps: (cal.steps as f64 * all).ceil() as usize,
-            ..rollout
-        };
+        let total = rollout.times(all);
         eprintln!(
             "work: a rollout {}; {all:.0} forward rollouts' worth in all (a gradient counted at its cost): {:.2e} particle-substeps, about {} at that rate",
             rollout.describe(),

@@ -57,10 +57,7 @@ pub fn bar(len: u64, quiet: bool) -> ProgressBar {
 pub fn announce_work(scene: &std::path::Path, rollouts: f64) -> anyhow::Result<()> {
     let mut sim = Simulation::from_file(scene, &powderlab::sim::SimOptions::default())?;
     let one = sim.work(sim.horizon);
-    let all = powderlab::scene::WorkEstimate {
-        steps: (sim.horizon as f64 * rollouts).round() as usize,
-        ..one
-    };
+    let all = one.times(rollouts);
     eprintln!(
         "work: {}: {rollouts:.0} forward rollouts' worth of {}; in all {:.2e} particle-substeps, about {} at that rate",
         scene.display(),

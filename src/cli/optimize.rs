@@ -254,10 +254,7 @@ pub fn run(args: Args) -> Result<()> {
         };
         let rollout = sim.work(longest);
         let all = settings.forward_rollouts();
-        let total = powderlab::scene::WorkEstimate {
-            steps: (longest as f64 * all).round() as usize,
-            ..rollout
-        };
+        let total = rollout.times(all);
         eprintln!(
             "work: a rollout at most {}; {all:.0} forward rollouts' worth in all: at most {:.2e} particle-substeps, about {} at that rate",
             rollout.describe(),

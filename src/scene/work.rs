@@ -39,6 +39,15 @@ impl WorkEstimate {
             * self.steps as f64
     }
 
+    /// The work of `rollouts` runs of this one (a fraction counts: a backward pass is a
+    /// fraction of a forward one's work), its steps rounded up.
+    pub fn times(&self, rollouts: f64) -> WorkEstimate {
+        WorkEstimate {
+            steps: (self.steps as f64 * rollouts).ceil() as usize,
+            ..*self
+        }
+    }
+
     /// Seconds at [`REFERENCE_RATE`].
     pub fn seconds(&self) -> f64 {
         self.particle_substeps() / REFERENCE_RATE
@@ -135,6 +144,8 @@ mod tests {
         assert!(w.describe().contains("about 2 s"), "{}", w.describe());
         let w = WorkEstimate { nodes: 0, ..w };
         assert_eq!(w.particle_substeps(), 3.0e6);
+        assert_eq!(w.times(2.5).steps, 250);
+        assert_eq!(w.times(0.001).steps, 1);
         assert!(w.describe().contains("about 1 s"), "{}", w.describe());
         assert!(!w.over_limit());
         let big = WorkEstimate {
