@@ -54,6 +54,32 @@ fn a_horizon_of_millions_of_steps_is_refused_naming_the_steps() {
         last.contains("`simulation.steps`") && last.contains("--force"),
         "{last}"
     );
+    // The file holds the field, so the refusal points at it.
+    let (line, _) = text
+        .lines()
+        .enumerate()
+        .find(|(_, l)| l.contains("steps: Some(20000000)"))
+        .unwrap();
+    assert!(last.contains(&format!("long.ron:{}:", line + 1)), "{last}");
+}
+
+#[test]
+fn a_horizon_the_tool_takes_is_not_blamed_on_a_field_the_file_lacks() {
+    // Found by `study reliability` (multi_scoop_dosing, case 397): a skill scene has no
+    // `simulation.steps`; its horizon comes from the tool's speeds, and a crawling tool takes
+    // hundreds of thousands of steps. The refusal named `simulation.steps` as if it were set.
+    let text = std::fs::read_to_string(common::scene_path("powder_transport.ron"))
+        .unwrap()
+        .replace("linear_speed: 0.2,", "linear_speed: 1e-4,");
+    let (code, err) = simulate(&text, "crawling.ron", &[]);
+    assert_eq!(code, 2, "{err}");
+    let last = err.trim_end().lines().last().unwrap();
+    assert!(
+        last.contains("the horizon of")
+            && last.contains("tool's controls")
+            && !last.contains("`simulation.steps` ="),
+        "{last}"
+    );
 }
 
 #[test]

@@ -69,12 +69,17 @@ pub fn run(a: Args) -> Result<()> {
     let work = sim.work(steps);
     eprintln!("work: {}", work.describe());
     if work.over_limit() && !force {
+        // The file's position of the field that drives the work, where the file holds it.
+        let (field, why) = work.driver(&sim.scene, &sim.stability);
+        let at = field.map_or(String::new(), |f| {
+            let (line, col) = powderlab::scene::parse::locate(&sim.scene.source, &f);
+            format!(":{line}:{col}")
+        });
         anyhow::bail!(
-            "{}: {}, over the limit of {:.0e}: {}; pass --force to run it anyway",
+            "{}{at}: {}, over the limit of {:.0e}: {why}; pass --force to run it anyway",
             scene.display(),
             work.describe(),
             powderlab::scene::WORK_LIMIT,
-            work.driver(&sim.scene, &sim.stability)
         );
     }
     eprintln!(

@@ -86,12 +86,16 @@ impl WorkEstimate {
         )
     }
 
-    /// The scene field that drives the work: the substeps (what raised them, for `Auto`), the
-    /// steps, or the particle count.
-    pub fn driver(&self, scene: &Scene, stability: &StabilityReport) -> String {
+    /// What drives the work, and the scene field to point at when the file holds it: the
+    /// substeps (what raised them, for `Auto`), the steps (the file's, or the horizon the tool's
+    /// controls take), the grid, or the particle count.
+    pub fn driver(&self, scene: &Scene, stability: &StabilityReport) -> (Option<String>, String) {
         if self.substeps >= 1000 {
             if !stability.raised() {
-                return format!("`simulation.substeps` = {} asks for them", self.substeps);
+                return (
+                    Some("simulation.substeps".into()),
+                    format!("`simulation.substeps` = {} asks for them", self.substeps),
+                );
             }
             if stability.wave_speed >= stability.max_speed {
                 let stiffest = scene
@@ -104,27 +108,46 @@ impl WorkEstimate {
                     })
                     .max_by(|a, b| a.1.total_cmp(&b.1));
                 if let Some((name, c)) = stiffest {
-                    return format!(
+                    return (Some(format!("materials.{name}.youngs_modulus")), format!(
                         "the stability guard raised the substeps from {} for material '{name}''s elastic wave speed of {c:.3e} m/s: lower `materials.{name}.youngs_modulus` or move `poisson_ratio` away from 0.5",
                         stability.substeps_requested
-                    );
+                    ));
                 }
             }
-            return format!(
+            return (None, format!(
                 "the stability guard raised the substeps from {} for a speed of {:.3e} m/s: slow the fastest tool or body",
                 stability.substeps_requested, stability.max_speed
-            );
+            ));
         }
         if self.steps as f64 >= 1e5 {
-            return format!("`simulation.steps` (or --steps) = {}", self.steps);
+            return match scene.simulation.steps {
+                Some(n) if n == self.steps => (
+                    Some("simulation.steps".into()),
+                    format!("`simulation.steps` = {}", self.steps),
+                ),
+                Some(_) => (None, format!("--steps {}", self.steps)),
+                None => (
+                    None,
+                    format!(
+                        "the horizon of {} steps that the tool's controls take (its speeds and pauses): set `simulation.steps` to run fewer",
+                        self.steps
+                    ),
+                ),
+            };
         }
         if NODE_WEIGHT * self.nodes as f64 > self.particles as f64 {
-            return format!(
-                "the grid's {} nodes, more work than its {} particles: lower `simulation.cells`",
-                self.nodes, self.particles
+            return (
+                Some("simulation.cells".into()),
+                format!(
+                    "the grid's {} nodes, more work than its {} particles: lower `simulation.cells`",
+                    self.nodes, self.particles
+                ),
             );
         }
-        "the particle count: lower `particles_per_cell` or shrink the fills".into()
+        (
+            None,
+            "the particle count: lower `particles_per_cell` or shrink the fills".into(),
+        )
     }
 }
 
