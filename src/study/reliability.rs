@@ -466,11 +466,16 @@ pub fn report(records: &[Record], cfg: &Config, command: &str, machine: &str) ->
     }
     let positioned = records
         .iter()
-        .filter(|r| r.outcome == Outcome::Refused && !r.last_line.contains("pass --force"))
+        .filter(|r| {
+            r.outcome == Outcome::Refused
+                && r.last_line
+                    .strip_prefix("error: FILE:")
+                    .is_some_and(|t| t.starts_with(|c: char| c.is_ascii_digit()))
+        })
         .count();
     let _ = writeln!(
         md,
-        "\nOf the refusals, {positioned} come from the text and carry `FILE:LINE:COLUMN` and a field; {} are the work limit's refusal of a loaded scene, which names the file and the field that drives the work.",
+        "\nOf the refusals, {positioned} carry `FILE:LINE:COLUMN` and a field; {} are the work limit's refusal of a loaded scene whose work no one field of the file drives (the horizon a skill's controls take, the particle count), and name the file and what to change.",
         count(Outcome::Refused) - positioned
     );
     let _ = writeln!(md, "\n## By seed scene\n");
