@@ -141,6 +141,22 @@ pub fn mutate_once(text: &mut Vec<u8>, rng: &mut SplitMix64) {
     }
 }
 
+/// The seed scenes under `root`: the shipped ones (`scenes/`) and the tests' (`tests/scenes/`),
+/// sorted by path. The CI fuzz test and `study reliability` mutate the same seeds.
+pub fn seeds(root: &std::path::Path) -> std::io::Result<Vec<std::path::PathBuf>> {
+    let mut out = Vec::new();
+    for dir in ["scenes", "tests/scenes"] {
+        for e in std::fs::read_dir(root.join(dir))? {
+            let p = e?.path();
+            if p.extension().is_some_and(|x| x == "ron") {
+                out.push(p);
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
 /// Case `k` of `seed`: one to three mutations drawn from `SplitMix64(k)`.
 pub fn case(seed: &[u8], k: u64) -> Vec<u8> {
     let mut rng = SplitMix64(0xF022_0000_0000 ^ k);

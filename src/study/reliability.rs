@@ -11,7 +11,7 @@ use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -195,22 +195,6 @@ pub fn problem(
     }
 }
 
-/// The seed scenes: the shipped ones and the tests', sorted by path.
-pub fn seeds(root: &Path) -> Result<Vec<PathBuf>> {
-    let mut out = Vec::new();
-    for dir in ["scenes", "tests/scenes"] {
-        let d = root.join(dir);
-        for e in std::fs::read_dir(&d).with_context(|| format!("reading {}", d.display()))? {
-            let p = e?.path();
-            if p.extension().is_some_and(|x| x == "ron") {
-                out.push(p);
-            }
-        }
-    }
-    out.sort();
-    Ok(out)
-}
-
 /// Runs `exe simulate FILE` under the cap and the timeout, and classifies it. The mutated
 /// scene is written to `work/` and removed afterwards; the failing ones are kept in
 /// `failing/` for reproduction.
@@ -320,7 +304,8 @@ pub fn run(
     std::fs::create_dir_all(dir)?;
     let journal = dir.join("cases.jsonl");
     let done = read_journal(&journal)?;
-    let seeds = seeds(root)?;
+    let seeds = fuzz::seeds(root)
+        .with_context(|| format!("reading the seed scenes under {}", root.display()))?;
     let texts: Vec<(String, Vec<u8>)> = seeds
         .iter()
         .map(|p| {
@@ -475,7 +460,7 @@ pub fn report(records: &[Record], cfg: &Config, command: &str, machine: &str) ->
         .count();
     let _ = writeln!(
         md,
-        "\nOf the refusals, {positioned} carry `FILE:LINE:COLUMN` and a field; {} are the work limit's refusal of a loaded scene whose work no one field of the file drives (the horizon a skill's controls take, the particle count), and name the file and what to change.",
+        "\nOf the refusals, {positioned} carry `FILE:LINE:COLUMN` and a field; {} (the rest) are the work limit's refusal of a loaded scene whose work no one field of the file drives (the horizon a skill's controls take, the particle count), and name the file and what to change.",
         count(Outcome::Refused) - positioned
     );
     let _ = writeln!(md, "\n## By seed scene\n");
