@@ -93,6 +93,37 @@ fn adam_recovers_a_friction_angle_on_a_tiny_scene() {
     assert!(best.loss < 0.1 * trace[0].loss);
 }
 
+#[test]
+fn bfgs_recovers_a_friction_angle_from_a_start_near_the_bound_on_a_tiny_scene() {
+    // The start is 25° off and near the top of the 10–60° range; the scan's quarters hold the
+    // truth's basin, and the descent refines it.
+    let truth = 32.0;
+    let mut cal = problem(&["friction_deg"], &[observed(truth, 50, true)]);
+    cal.params[0].apply(&mut cal.scene, 57.0);
+    let u0 = cal.start();
+    let cfg = calibrate::TrustConfig::for_dims(1);
+    let trace = calibrate::trust_region(&u0, 30.0, cfg, 1, |_, u, g| cal.evaluate(u, g)).unwrap();
+    let spent: f64 = trace.iter().map(|e| e.cost).sum();
+    assert!(spent <= 30.0 + 1e-9, "spent {spent} of 30");
+    assert!(
+        trace.iter().any(|e| e.grad.is_some()),
+        "no gradient rollout ran"
+    );
+    let best = trace
+        .iter()
+        .min_by(|a, b| a.loss.total_cmp(&b.loss))
+        .unwrap();
+    assert!(
+        (best.values[0] - truth).abs() < 1.0,
+        "fitted {} for a true {truth} from 57 (trace {:?})",
+        best.values[0],
+        trace
+            .iter()
+            .map(|e| (e.values[0], e.loss))
+            .collect::<Vec<_>>()
+    );
+}
+
 fn powderlab(args: &[&str]) -> (i32, String) {
     let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
         .args(args)

@@ -24,12 +24,14 @@ pub mod journal;
 pub mod observation;
 pub mod params;
 pub mod plot;
+pub mod trust;
 
 pub use curvature::{
     identifiability, symmetric_eigen, Identifiability, CURVATURE_STEP, PINNED_SHARE,
 };
 pub use fit::{adam, cmaes, measure_backward_cost, AdamConfig, CMA_SIGMA0};
 pub use journal::Journal;
+pub use trust::{trust_region, TrustConfig};
 
 use crate::adjoint::loss::HeightObservation;
 use crate::adjoint::tape::{gradient_with, Loss, Tape, Term};

@@ -15,9 +15,19 @@ pub struct Curve {
     pub faint: bool,
 }
 
-/// The colours of the two methods in every calibration figure.
+/// The colours of the methods in every calibration figure.
 pub const ADAM: RGBColor = RGBColor(31, 119, 180);
+pub const BFGS: RGBColor = RGBColor(214, 39, 40);
 pub const CMAES: RGBColor = RGBColor(44, 160, 44);
+
+/// A method's colour by its name (`adam`, `bfgs`, `cmaes`).
+pub fn colour(method: &str) -> RGBColor {
+    match method {
+        "adam" => ADAM,
+        "bfgs" => BFGS,
+        _ => CMAES,
+    }
+}
 
 /// Draws the curves (non-positive values are left out of the log axis) and writes the SVG
 /// atomically.

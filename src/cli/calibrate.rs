@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Context, Result};
 use powderlab::calibrate::observation::{self, Observation};
-use powderlab::calibrate::plot::{curves_svg, Curve, ADAM, CMAES};
+use powderlab::calibrate::plot::{curves_svg, Curve};
 use powderlab::calibrate::{self, params, AdamConfig, Calibration, Eval, Journal};
 use powderlab::scene::Scene;
 use powderlab::util::{create_output_dir, write_atomic};
@@ -32,8 +32,8 @@ pub struct Args {
     /// Start NAME=VALUE instead of the scene's value.
     #[arg(long)]
     start: Vec<String>,
-    /// cmaes (the forward loss only; the default: it recovered friction angle and floor
-    /// friction better than the adjoint at equal compute, docs/results/calibration.md) or adam
+    /// cmaes (CMA-ES on the forward loss only; the default, docs/results/calibration.md), bfgs
+    /// (a scan, then a bounded trust-region quasi-Newton method on the adjoint gradient) or adam
     /// (Adam on the adjoint gradient).
     #[arg(long, default_value = "cmaes")]
     method: String,
@@ -111,8 +111,8 @@ pub fn run(a: Args) -> Result<()> {
             }
         }
     }
-    if !matches!(a.method.as_str(), "adam" | "cmaes") {
-        bail!("--method {}: expected adam or cmaes", a.method);
+    if !matches!(a.method.as_str(), "adam" | "bfgs" | "cmaes") {
+        bail!("--method {}: expected cmaes, bfgs or adam", a.method);
     }
     if !(a.budget.is_finite() && a.budget >= 1.0) {
         bail!("--budget {}: expected at least 1 forward rollout", a.budget);
@@ -221,6 +221,13 @@ pub fn run(a: Args) -> Result<()> {
             step(&e, &mut spent);
             Ok(e)
         })?
+    } else if a.method == "bfgs" {
+        let cfg = calibrate::TrustConfig::for_dims(u0.len());
+        calibrate::trust_region(&u0, a.budget, cfg, 0xCA1, |i, u, g| {
+            let e = journal.eval(&cal, "bfgs", i, u, g)?;
+            step(&e, &mut spent);
+            Ok(e)
+        })?
     } else {
         calibrate::cmaes(&u0, a.budget.floor() as usize, 0xCA1, |i, u, g| {
             let e = journal.eval(&cal, "cmaes", i, u, g)?;
@@ -289,7 +296,7 @@ pub fn run(a: Args) -> Result<()> {
         "loss",
         &[Curve {
             label: a.method.clone(),
-            colour: if a.method == "adam" { ADAM } else { CMAES },
+            colour: calibrate::plot::colour(&a.method),
             points: curve,
             faint: false,
         }],

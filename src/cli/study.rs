@@ -685,14 +685,14 @@ fn policy_cmd(a: Args) -> Result<()> {
 }
 
 /// `powderlab study calibration`: recovery of known parameters from noisy synthetic
-/// observations, Adam on the adjoint against CMA-ES at equal compute.
+/// observations, Adam and BFGS on the adjoint against CMA-ES at equal compute.
 fn calibration_cmd(a: Args) -> Result<()> {
     use powderlab::study::calibration;
     if a.seeds == 0 || a.budget == 0 {
         bail!("study calibration: --seeds and --budget must be at least 1");
     }
     let budget = a.budget as f64;
-    let runs = calibration::CASES.len() * 5 * a.seeds * 2;
+    let runs = calibration::CASES.len() * 5 * a.seeds * calibration::METHODS.len();
     let total = runs as f64 * budget + 2.0 * budget + 6.0 * 3.4;
     for case in &calibration::CASES {
         super::announce_work(

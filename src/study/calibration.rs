@@ -7,10 +7,11 @@
 //! - **floor friction** from the final surface of a layer of sand thrown along the floor
 //!   (`scenes/calibration_slide.ron`), same noise.
 //!
-//! For each (true value, start) pair, Adam on the adjoint and CMA-ES on the forward loss get the
-//! same compute ([`super::super::optim::report::BACKWARD_COST`] per backward pass); each is
+//! For each (true value, start) pair, three methods get the same compute (a backward pass counted
+//! at its measured cost in forward rollouts): Adam and the trust-region quasi-Newton method
+//! ([`crate::calibrate::trust`]) on the adjoint gradient, and CMA-ES on the forward loss. Each is
 //! scored by the parameter error of its rollout of lowest loss. The starts are uniform in the
-//! middle of the search range, drawn from the pair's seed, and shared by both methods. A third
+//! middle of the search range, drawn from the pair's seed, and shared by the methods. A third
 //! case fits friction angle, Young's modulus and floor friction together on the collapse and
 //! reports the curvature: which of them one pile pins down.
 //!
@@ -19,9 +20,10 @@
 
 use super::optimizers::wilcoxon_less;
 use crate::calibrate::observation::Observed;
-use crate::calibrate::plot::{curves_svg, Curve, ADAM, CMAES};
+use crate::calibrate::plot::{colour, curves_svg, Curve};
 use crate::calibrate::{
-    self, params, AdamConfig, Calibration, Eval, Identifiability, Journal, CURVATURE_STEP,
+    self, params, AdamConfig, Calibration, Eval, Identifiability, Journal, TrustConfig,
+    CURVATURE_STEP,
 };
 use crate::optim::report::mean_std;
 use crate::scene::Scene;
@@ -76,6 +78,19 @@ pub const CASES: [Case; 2] = [
         unit: "",
     },
 ];
+
+/// The methods compared, as the journal keys them: Adam and the trust-region quasi-Newton
+/// method on the adjoint, CMA-ES on the forward loss.
+pub const METHODS: [&str; 3] = ["adam", "bfgs", "cmaes"];
+
+/// How the page names a method.
+fn title(method: &str) -> &'static str {
+    match method {
+        "adam" => "Adam",
+        "bfgs" => "BFGS",
+        _ => "CMA-ES",
+    }
+}
 
 /// One (case, truth, start) pair's result for one method.
 #[derive(Clone, Debug, Serialize)]
@@ -192,6 +207,20 @@ fn score(trace: &[Eval], truth: f64) -> (f64, Vec<(f64, f64)>) {
     (value, curve)
 }
 
+/// The compute after which a run's best-so-far error stays within `tol`: the first point of
+/// `curve` (compute, error) from which every later error is within it; `None` if the last is not.
+pub fn settled(curve: &[(f64, f64)], tol: f64) -> Option<f64> {
+    let mut at = None;
+    for &(c, e) in curve.iter().rev() {
+        if e <= tol {
+            at = Some(c);
+        } else {
+            break;
+        }
+    }
+    at
+}
+
 /// Runs every case, truth, start and method (resuming from `dir/rollouts.jsonl`).
 pub fn run(
     dir: &Path,
@@ -230,7 +259,7 @@ pub fn run(
     for (ci, case) in CASES.iter().enumerate() {
         for &truth in &case.truths {
             for seed in 0..seeds {
-                for method in ["adam", "cmaes"] {
+                for method in METHODS {
                     jobs.push((ci, truth, seed, method));
                 }
             }
@@ -250,6 +279,14 @@ pub fn run(
                 calibrate::adam(&u0, budget, AdamConfig::default(), |i, u, g| {
                     shared.eval(&cal, &key, i, u, g)
                 })?
+            } else if method == "bfgs" {
+                calibrate::trust_region(
+                    &u0,
+                    budget,
+                    TrustConfig::for_dims(1),
+                    0xCA1 + seed as u64,
+                    |i, u, g| shared.eval(&cal, &key, i, u, g),
+                )?
             } else {
                 calibrate::cmaes(
                     &u0,
@@ -297,9 +334,13 @@ pub fn run(
         cal.threads = None;
         cal.backward_cost = costs[0];
         let u0 = cal.start();
-        let trace = calibrate::adam(&u0, 2.0 * budget, AdamConfig::default(), |i, u, g| {
-            shared.eval(&cal, "joint/adam", i, u, g)
-        })?;
+        let trace = calibrate::trust_region(
+            &u0,
+            2.0 * budget,
+            TrustConfig::for_dims(cal.params.len()),
+            0xCA1,
+            |i, u, g| shared.eval(&cal, "joint/bfgs", i, u, g),
+        )?;
         let best = trace
             .iter()
             .min_by(|a, b| a.loss.total_cmp(&b.loss))
@@ -321,7 +362,26 @@ pub fn run(
         })?;
         Some((cal, best, id))
     };
-    Ok(Outcome { runs, joint, costs })
+    // The loss's grain: gradient rollouts every 0.1° across two degrees below a true 26°.
+    let grain = {
+        let cal = problem(&CASES[0], GRAIN.0, None, costs[0])?;
+        let mut pts = Vec::new();
+        for k in 0..GRAIN.3 {
+            let v = GRAIN.1 + (GRAIN.2 - GRAIN.1) * k as f64 / (GRAIN.3 - 1) as f64;
+            let u = [cal.params[0].to_unit(v)];
+            let e = shared.eval(&cal, "grain", k, &u, true)?;
+            // Per degree, not per unit coordinate.
+            let g = e.grad.as_ref().map_or(f64::NAN, |g| g[0]) / cal.params[0].dvalue_du(u[0]);
+            pts.push((v, e.loss, g));
+        }
+        pts
+    };
+    Ok(Outcome {
+        runs,
+        joint,
+        costs,
+        grain,
+    })
 }
 
 /// The joint fit: the problem, its best rollout and the curvature there.
@@ -333,6 +393,31 @@ pub struct Outcome {
     pub joint: Option<Joint>,
     /// Each case's backward cost in forward rollouts.
     pub costs: Vec<f64>,
+    /// The collapse's loss at [`GRAIN`]'s points: (friction angle, loss, ∂L/∂φ per degree).
+    pub grain: Vec<(f64, f64, f64)>,
+}
+
+/// The sweep that shows the collapse's loss at grain scale: (true friction angle, from, to,
+/// points), gradient rollouts at every point.
+pub const GRAIN: (f64, f64, f64, usize) = (26.0, 23.0, 25.0, 21);
+
+/// What a sweep `(x, loss, dL/dx)` says of the loss's grain: its interior local minima, and how
+/// often the gradient's sign agrees with the secant over the sweep's whole width, with the
+/// gradients' range against that secant.
+pub fn grain_summary(pts: &[(f64, f64, f64)]) -> (usize, usize, f64, f64, f64) {
+    let minima = pts
+        .windows(3)
+        .filter(|w| w[1].1 < w[0].1 && w[1].1 < w[2].1)
+        .count();
+    let (first, last) = (pts[0], pts[pts.len() - 1]);
+    let secant = (last.1 - first.1) / (last.0 - first.0);
+    let agree = pts
+        .iter()
+        .filter(|p| p.2.signum() == secant.signum())
+        .count();
+    let lo = pts.iter().map(|p| p.2).fold(f64::INFINITY, f64::min);
+    let hi = pts.iter().map(|p| p.2).fold(f64::NEG_INFINITY, f64::max);
+    (minima, agree, secant, lo, hi)
 }
 
 /// The page: per case, the recovery table, Adam against CMA-ES with a paired test, and the
@@ -345,14 +430,17 @@ pub fn report(
     results: &Path,
 ) -> anyhow::Result<String> {
     let (runs, joint, costs) = (&o.runs, &o.joint, &o.costs);
+    let (minima, agree, secant, glo, ghi) = grain_summary(&o.grain);
     let mut md = format!(
         "# Calibration from observations\n\nRegenerate with `{command}` ({machine}).\n\n\
 Synthetic observations: each scene is run at a true parameter value and its final surface is seen \
 as a height map (a pixel per particle spacing, 1.25 mm) with {:.0} mm of Gaussian noise on every height. Each \
-(true value, start) pair gives Adam on the adjoint and CMA-ES on the forward loss the same compute, \
+(true value, start) pair gives three methods the same compute: Adam on the adjoint gradient (normalised \
+gradient descent, as DPSI uses), BFGS (a bounded trust-region quasi-Newton method on the adjoint gradient, after a scan of \
+four forward rollouts per parameter; `src/calibrate/trust.rs`) and CMA-ES on the forward loss: \
 {budget} forward rollouts (a gradient rollout counts 1 + the backward pass's cost); each is scored \
 by the parameter error of its rollout of lowest loss. p is a one-sided Wilcoxon signed-rank test \
-over the pairs that Adam's error is lower. The backward pass's cost was measured on each scene \
+over the pairs that a gradient method's error is lower than CMA-ES's. The backward pass's cost was measured on each scene \
 (one thread, median of three): {} forward rollouts.\n",
         HEIGHT_NOISE * 1e3,
         costs.iter().zip(&CASES).map(|(c, k)| format!("{c:.2} on `{}`", k.scene)).collect::<Vec<_>>().join(", ")
@@ -367,24 +455,28 @@ over the pairs that Adam's error is lower. The backward pass's cost was measured
             v.sort_by(|a, b| a.truth.total_cmp(&b.truth).then(a.seed.cmp(&b.seed)));
             v
         };
-        let (adam, cma) = (of("adam"), of("cmaes"));
-        if adam.is_empty() {
+        let by: Vec<Vec<&Run>> = METHODS.iter().map(|m| of(m)).collect();
+        if by.iter().any(|v| v.is_empty()) {
             continue;
         }
         md.push_str(&format!(
-            "\n## {} (`{}`, `--fit {}`)\n\n| true | start | Adam fitted | Adam error | CMA-ES fitted | CMA-ES error |\n|---|---|---|---|---|---|\n",
-            case.name, case.scene, case.param
+            "\n## {} (`{}`, `--fit {}`)\n\n| true | start |{}\n|---|---|{}\n",
+            case.name,
+            case.scene,
+            case.param,
+            METHODS
+                .iter()
+                .map(|m| format!(" {0} fitted | {0} error |", title(m)))
+                .collect::<String>(),
+            "---|---|".repeat(METHODS.len())
         ));
-        for (a, c) in adam.iter().zip(&cma) {
-            md.push_str(&format!(
-                "| {} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |\n",
-                a.truth, a.start, a.fitted, a.error, c.fitted, c.error
-            ));
+        for (k, a) in by[0].iter().enumerate() {
+            md.push_str(&format!("| {} | {:.3} |", a.truth, a.start));
+            for runs in &by {
+                md.push_str(&format!(" {:.3} | {:.3} |", runs[k].fitted, runs[k].error));
+            }
+            md.push('\n');
         }
-        let ea: Vec<f64> = adam.iter().map(|r| r.error).collect();
-        let ec: Vec<f64> = cma.iter().map(|r| r.error).collect();
-        let (ma, sa) = mean_std(&ea);
-        let (mc, sc) = mean_std(&ec);
         // Pairs within the tolerance, and true values with every start within it.
         let recovered = |runs: &[&Run]| {
             let pairs = runs.iter().filter(|r| r.error <= case.tolerance).count();
@@ -399,18 +491,40 @@ over the pairs that Adam's error is lower. The backward pass's cost was measured
                 .count();
             (pairs, truths)
         };
-        let ((pa, ta), (pc, tc)) = (recovered(&adam), recovered(&cma));
-        let p = wilcoxon_less(&ea, &ec)
-            .map(|p| format!("{p:.3}"))
-            .unwrap_or_else(|| "–".into());
+        let cma = by.last().expect("CMA-ES is the last method");
+        let ec: Vec<f64> = cma.iter().map(|r| r.error).collect();
+        md.push('\n');
+        for (m, runs) in METHODS.iter().zip(&by) {
+            let e: Vec<f64> = runs.iter().map(|r| r.error).collect();
+            let (mean, sd) = mean_std(&e);
+            let (pairs, truths) = recovered(runs);
+            md.push_str(&format!(
+                "- {}: error {mean:.3} ± {sd:.3}{u}, {pairs}/{n} pairs within {tol}{u}, {truths}/5 true values with every start within it",
+                title(m),
+                n = e.len(),
+                tol = case.tolerance,
+                u = case.unit
+            ));
+            if *m != "cmaes" {
+                let p = wilcoxon_less(&e, &ec)
+                    .map(|p| format!("{p:.3}"))
+                    .unwrap_or_else(|| "–".into());
+                md.push_str(&format!("; lower than CMA-ES's: p = {p}"));
+            }
+            md.push_str(".\n");
+        }
         md.push_str(&format!(
-            "
-Adam: error {ma:.3} ± {sa:.3}{u}, {pa}/{n} pairs within {tol}{u}, {ta}/5 true values with every start within it. CMA-ES: {mc:.3} ± {sc:.3}{u}, {pc}/{n} pairs within {tol}{u}, {tc}/5 true values. Adam lower: p = {p}.\n",
-            n = ea.len(),
-            tol = case.tolerance,
-            u = case.unit
+            "\nAt smaller budgets (the error of the best rollout so far, read off each run's curve; p: lower than CMA-ES's):\n\n| compute (forward rollouts) |{}\n|---|{}\n",
+            METHODS
+                .iter()
+                .map(|m| if *m == "cmaes" {
+                    format!(" {} error |", title(m))
+                } else {
+                    format!(" {0} error | {0}: p |", title(m))
+                })
+                .collect::<String>(),
+            "---|".repeat(2 * METHODS.len() - 1)
         ));
-        md.push_str("\nAt smaller budgets (the error of the best rollout so far, read off each run's curve):\n\n| compute (forward rollouts) | Adam error | CMA-ES error | Adam lower: p |\n|---|---|---|---|\n");
         for b in [10.0, 20.0, budget] {
             let at = |r: &Run| {
                 r.curve
@@ -419,26 +533,54 @@ Adam: error {ma:.3} ± {sa:.3}{u}, {pa}/{n} pairs within {tol}{u}, {ta}/5 true v
                     .last()
                     .map_or(f64::NAN, |p| p.1)
             };
-            let xa: Vec<f64> = adam.iter().map(|r| at(r)).collect();
             let xc: Vec<f64> = cma.iter().map(|r| at(r)).collect();
-            let p = wilcoxon_less(&xa, &xc)
-                .map(|p| format!("{p:.3}"))
-                .unwrap_or_else(|| "–".into());
+            md.push_str(&format!("| {b} |"));
+            for (m, runs) in METHODS.iter().zip(&by) {
+                let x: Vec<f64> = runs.iter().map(|r| at(r)).collect();
+                let (mean, sd) = mean_std(&x);
+                md.push_str(&format!(" {mean:.3} ± {sd:.3} |"));
+                if *m != "cmaes" {
+                    let p = wilcoxon_less(&x, &xc)
+                        .map(|p| format!("{p:.3}"))
+                        .unwrap_or_else(|| "–".into());
+                    md.push_str(&format!(" {p} |"));
+                }
+            }
+            md.push('\n');
+        }
+        md.push_str(&format!(
+            "\nCompute until the best rollout stays within {tol}{u} of the truth, median over the pairs that get there:",
+            tol = case.tolerance,
+            u = case.unit
+        ));
+        for (k, (m, runs)) in METHODS.iter().zip(&by).enumerate() {
+            let reached: Vec<f64> = runs
+                .iter()
+                .filter_map(|r| settled(&r.curve, case.tolerance))
+                .collect();
             md.push_str(&format!(
-                "| {b} | {:.3} ± {:.3} | {:.3} ± {:.3} | {p} |\n",
-                mean_std(&xa).0,
-                mean_std(&xa).1,
-                mean_std(&xc).0,
-                mean_std(&xc).1
+                "{} {} {} ({}/{} pairs)",
+                if k == 0 { "" } else { ";" },
+                title(m),
+                if reached.is_empty() {
+                    "–".to_string()
+                } else {
+                    format!("{:.1}", crate::optim::rmsprop::median(&reached))
+                },
+                reached.len(),
+                runs.len()
             ));
         }
-        for r in adam.iter().chain(&cma) {
-            curves.push((ci, *r));
+        md.push_str(".\n");
+        for runs in &by {
+            for r in runs {
+                curves.push((ci, *r));
+            }
         }
     }
     if let Some((cal, best, id)) = joint {
         md.push_str(&format!(
-            "\n## Which parameters one pile pins down\n\nThe collapse at friction_deg 30, youngs_modulus 5e4 and floor.friction 0.5, fitted jointly by Adam from 36, 1.5e5 and 0.35 ({} forward rollouts of compute; its best loss {:.4e} against {:.4e} at the truth). The curvature is taken at the truth (what the observation can pin down, whatever an optimiser reaches), by central second differences of the loss at {} % of each range, where the loss's roughness averages out. Standard errors from `Cov(u) ≈ (2L*/n) H⁻¹` with n = {} pixels, infinite where the curvature is not positive definite; pinned down when under {} % of the range (of the value, for Young's modulus, searched in decades).\n\n| parameter | true | Adam's fit | std. error | share | pinned down |\n|---|---|---|---|---|---|\n",
+            "\n## Which parameters one pile pins down\n\nThe collapse at friction_deg 30, youngs_modulus 5e4 and floor.friction 0.5, fitted jointly by BFGS from 36, 1.5e5 and 0.35 ({} forward rollouts of compute; its best loss {:.4e} against {:.4e} at the truth). The curvature is taken at the truth (what the observation can pin down, whatever an optimiser reaches), by central second differences of the loss at {} % of each range, where the loss's roughness averages out. Standard errors from `Cov(u) ≈ (2L*/n) H⁻¹` with n = {} pixels, infinite where the curvature is not positive definite; pinned down when under {} % of the range (of the value, for Young's modulus, searched in decades).\n\n| parameter | true | BFGS's fit | std. error | share | pinned down |\n|---|---|---|---|---|---|\n",
             2.0 * budget,
             best.loss,
             id.loss,
@@ -480,7 +622,7 @@ Adam: error {ma:.3} ± {sa:.3}{u}, {pa}/{n} pairs within {tol}{u}, {ta}/5 true v
                     "floor friction"
                 }
             ),
-            colour: if r.method == "adam" { ADAM } else { CMAES },
+            colour: colour(&r.method),
             points: r.curve.iter().map(|&(c, e)| (c, e / scale)).collect(),
             faint: *ci == 1,
         });
@@ -492,6 +634,45 @@ Adam: error {ma:.3} ± {sa:.3}{u}, {pa}/{n} pairs within {tol}{u}, {ta}/5 true v
         "error / start range",
         &figure,
     )?;
+    md.push_str(&format!(
+        "\n## The loss's grain\n\nThe collapse's loss for a true {:.0}° (the pairs' observation), a gradient rollout every {:.1}° from {:.0}° to {:.0}°. Over the two degrees the loss falls by {:.1} % (secant {secant:.3e} per degree), but not smoothly: it has {minima} interior local minima, and the adjoint gradient has the secant's sign at {agree} of {} points, ranging from {glo:.3e} to {ghi:.3e} per degree. The gradient is exact for each rollout (the gradient checks); what it differentiates is a staircase, flat for a tenth of a degree and then a drop, as grains settle in other cells. A local method stops in the first such step it cannot see over; a search that spreads its rollouts over degrees does not see the steps. This is why the trust region stops shrinking at [`MIN_RADIUS`](../../src/calibrate/trust.rs) (0.5°) and spends what is left in another basin.\n\n| friction (°) | loss | ∂L/∂φ (per degree) |\n|---|---|---|\n",
+        GRAIN.0,
+        (GRAIN.2 - GRAIN.1) / (GRAIN.3 - 1) as f64,
+        GRAIN.1,
+        GRAIN.2,
+        100.0 * (o.grain[0].1 - o.grain[o.grain.len() - 1].1) / o.grain[0].1,
+        o.grain.len()
+    ));
+    for (v, l, g) in &o.grain {
+        md.push_str(&format!("| {v:.1} | {l:.4e} | {g:.3e} |\n"));
+    }
     md.push_str("\n![parameter error against compute](calibration.svg)\n\nBold lines: friction angle; pale lines: floor friction. One line per (true value, start) pair.\n");
     Ok(md)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::settled;
+
+    #[test]
+    fn the_grain_summary_counts_minima_and_sign_agreement() {
+        let pts = [
+            (0.0, 5.0, -1.0),
+            (1.0, 4.0, 0.5),
+            (2.0, 4.5, -2.0),
+            (3.0, 3.0, -1.0),
+            (4.0, 1.0, -0.1),
+        ];
+        let (minima, agree, secant, lo, hi) = super::grain_summary(&pts);
+        assert_eq!((minima, agree), (1, 4));
+        assert_eq!((secant, lo, hi), (-1.0, -2.0, 0.5));
+    }
+
+    #[test]
+    fn a_run_settles_where_its_error_enters_the_tolerance_for_good() {
+        let c = [(1.0, 5.0), (2.0, 0.5), (3.0, 2.0), (4.0, 0.8), (5.0, 0.3)];
+        assert_eq!(settled(&c, 1.0), Some(4.0));
+        assert_eq!(settled(&c, 0.1), None);
+        assert_eq!(settled(&c, 10.0), Some(1.0));
+    }
 }
