@@ -43,10 +43,10 @@ impl TrustConfig {
 }
 
 /// The smallest trust region, in unit coordinates (0.5° of a 10–60° friction range, 0.015 of a
-/// 0–1.5 friction): a pile's height loss is a staircase below it, flat for a tenth of a degree,
-/// then a drop, with local minima a few tenths of a degree apart (a 0.1° sweep of the collapse,
-/// `docs/design.md`). A step rejected at this size ends a descent, and the next starts in
-/// another basin.
+/// 0–1.5 friction): a pile's height loss has bumps under a degree wide (a 0.1° sweep of the
+/// collapse on `docs/results/calibration.md`: a rise of 4 % over 0.7° on a two-degree slope
+/// down), which a smaller region only settles into. A step rejected at this size ends a descent,
+/// and the next starts in another basin.
 pub const MIN_RADIUS: f64 = 1e-2;
 
 /// Model agreement `ρ = actual / predicted decrease` above which a step that reached the region's

@@ -693,7 +693,8 @@ fn calibration_cmd(a: Args) -> Result<()> {
     }
     let budget = a.budget as f64;
     let runs = calibration::CASES.len() * 5 * a.seeds * calibration::METHODS.len();
-    let total = runs as f64 * budget + 2.0 * budget + 6.0 * 3.4;
+    // The pairs, the joint fit and its curvature, and the grain sweep's gradient rollouts.
+    let total = runs as f64 * budget + 2.0 * budget + 6.0 * 3.4 + calibration::GRAIN.3 as f64 * 3.4;
     for case in &calibration::CASES {
         super::announce_work(
             std::path::Path::new(case.scene),

@@ -401,23 +401,60 @@ pub struct Outcome {
 /// points), gradient rollouts at every point.
 pub const GRAIN: (f64, f64, f64, usize) = (26.0, 23.0, 25.0, 21);
 
-/// What a sweep `(x, loss, dL/dx)` says of the loss's grain: its interior local minima, and how
-/// often the gradient's sign agrees with the secant over the sweep's whole width, with the
-/// gradients' range against that secant.
-pub fn grain_summary(pts: &[(f64, f64, f64)]) -> (usize, usize, f64, f64, f64) {
+/// What a sweep `(x, loss, dL/dx)` says of the loss's grain.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Grain {
+    /// Interior points lower than both neighbours.
+    pub minima: usize,
+    /// Interior points whose gradient has the sign of their neighbours' central difference.
+    pub agree_local: usize,
+    /// Points whose gradient has the sign of the secant over the whole sweep.
+    pub agree_secant: usize,
+    /// That secant, per unit of x.
+    pub secant: f64,
+    /// The largest rise a walk down the secant meets: `(rise, from x, to x)`, the loss going up
+    /// from `from` to `to` although the sweep as a whole goes down.
+    pub barrier: (f64, f64, f64),
+}
+
+/// The [`Grain`] of a sweep of at least three points, in order of x.
+pub fn grain_summary(pts: &[(f64, f64, f64)]) -> Grain {
     let minima = pts
         .windows(3)
         .filter(|w| w[1].1 < w[0].1 && w[1].1 < w[2].1)
         .count();
+    let agree_local = pts
+        .windows(3)
+        .filter(|w| w[1].2.signum() == (w[2].1 - w[0].1).signum())
+        .count();
     let (first, last) = (pts[0], pts[pts.len() - 1]);
     let secant = (last.1 - first.1) / (last.0 - first.0);
-    let agree = pts
+    let agree_secant = pts
         .iter()
         .filter(|p| p.2.signum() == secant.signum())
         .count();
-    let lo = pts.iter().map(|p| p.2).fold(f64::INFINITY, f64::min);
-    let hi = pts.iter().map(|p| p.2).fold(f64::NEG_INFINITY, f64::max);
-    (minima, agree, secant, lo, hi)
+    // Walk in the direction the loss falls overall; the rise above the lowest point so far.
+    let walk: Vec<&(f64, f64, f64)> = if secant <= 0.0 {
+        pts.iter().collect()
+    } else {
+        pts.iter().rev().collect()
+    };
+    let mut low = walk[0];
+    let mut barrier = (0.0, low.0, low.0);
+    for p in walk {
+        if p.1 < low.1 {
+            low = p;
+        } else if p.1 - low.1 > barrier.0 {
+            barrier = (p.1 - low.1, low.0, p.0);
+        }
+    }
+    Grain {
+        minima,
+        agree_local,
+        agree_secant,
+        secant,
+        barrier,
+    }
 }
 
 /// The page: per case, the recovery table, Adam against CMA-ES with a paired test, and the
@@ -430,7 +467,7 @@ pub fn report(
     results: &Path,
 ) -> anyhow::Result<String> {
     let (runs, joint, costs) = (&o.runs, &o.joint, &o.costs);
-    let (minima, agree, secant, glo, ghi) = grain_summary(&o.grain);
+    let grain = grain_summary(&o.grain);
     let mut md = format!(
         "# Calibration from observations\n\nRegenerate with `{command}` ({machine}).\n\n\
 Synthetic observations: each scene is run at a true parameter value and its final surface is seen \
@@ -635,12 +672,24 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
         &figure,
     )?;
     md.push_str(&format!(
-        "\n## The loss's grain\n\nThe collapse's loss for a true {:.0}° (the pairs' observation), a gradient rollout every {:.1}° from {:.0}° to {:.0}°. Over the two degrees the loss falls by {:.1} % (secant {secant:.3e} per degree), but not smoothly: it has {minima} interior local minima, and the adjoint gradient has the secant's sign at {agree} of {} points, ranging from {glo:.3e} to {ghi:.3e} per degree. The gradient is exact for each rollout (the gradient checks); what it differentiates is a staircase, flat for a tenth of a degree and then a drop, as grains settle in other cells. A local method stops in the first such step it cannot see over; a search that spreads its rollouts over degrees does not see the steps. This is why the trust region stops shrinking at [`MIN_RADIUS`](../../src/calibrate/trust.rs) (0.5°) and spends what is left in another basin.\n\n| friction (°) | loss | ∂L/∂φ (per degree) |\n|---|---|---|\n",
+        "\n## The loss's grain\n\nThe collapse's loss for a true {:.0}° (the pairs' observation), a gradient rollout every {:.1}° from {:.0}° to {:.0}°. Over the sweep the loss falls by {:.1} % (secant {:.3e} per degree), but not monotonically: it has {} interior local minima, and walking down the secant a local method meets a rise of {:.1} % of the loss there, from {:.1}° to {:.1}°. The adjoint gradient follows the loss it differentiates: it has the sign of its neighbours' central difference at {} of {} interior points, and the secant's sign at {} of {}. A descent stops at the first such rise wider than its region; a search that spreads its rollouts over degrees does not see it. This is why the trust region stops shrinking at [`MIN_RADIUS`](../../src/calibrate/trust.rs) (0.5°) and spends what is left in another basin.\n\n| friction (°) | loss | ∂L/∂φ (per degree) |\n|---|---|---|\n",
         GRAIN.0,
         (GRAIN.2 - GRAIN.1) / (GRAIN.3 - 1) as f64,
         GRAIN.1,
         GRAIN.2,
         100.0 * (o.grain[0].1 - o.grain[o.grain.len() - 1].1) / o.grain[0].1,
+        grain.secant,
+        grain.minima,
+        100.0 * grain.barrier.0
+            / o.grain
+                .iter()
+                .find(|p| p.0 == grain.barrier.1)
+                .map_or(f64::NAN, |p| p.1),
+        grain.barrier.1,
+        grain.barrier.2,
+        grain.agree_local,
+        o.grain.len() - 2,
+        grain.agree_secant,
         o.grain.len()
     ));
     for (v, l, g) in &o.grain {
@@ -655,7 +704,8 @@ mod tests {
     use super::settled;
 
     #[test]
-    fn the_grain_summary_counts_minima_and_sign_agreement() {
+    fn the_grain_summary_counts_minima_agreement_and_the_barrier() {
+        // Falls overall, with a bump from x = 1 (4.0) to x = 2 (4.5).
         let pts = [
             (0.0, 5.0, -1.0),
             (1.0, 4.0, 0.5),
@@ -663,9 +713,11 @@ mod tests {
             (3.0, 3.0, -1.0),
             (4.0, 1.0, -0.1),
         ];
-        let (minima, agree, secant, lo, hi) = super::grain_summary(&pts);
-        assert_eq!((minima, agree), (1, 4));
-        assert_eq!((secant, lo, hi), (-1.0, -2.0, 0.5));
+        let g = super::grain_summary(&pts);
+        assert_eq!((g.minima, g.agree_secant, g.secant), (1, 4, -1.0));
+        // Central differences at 1, 2, 3: −0.5, −0.5, −1.75; gradients 0.5, −2, −1.
+        assert_eq!(g.agree_local, 2);
+        assert_eq!(g.barrier, (0.5, 1.0, 2.0));
     }
 
     #[test]
