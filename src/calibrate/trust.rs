@@ -221,25 +221,13 @@ pub fn trust_region(
     };
     let mut visited: Vec<Vec<f64>> = Vec::new();
     let spacing = ((cfg.scan + 1) as f64).powf(-1.0 / d as f64);
-    // The cost of a gradient rollout is known once one has run; the first always runs if the scan
-    // left any budget.
-    let mut grad_cost: Option<f64> = None;
     while let Some(k) = starts.iter().position(|p| {
         visited
             .iter()
             .all(|v| v.iter().zip(p).any(|(a, b)| (a - b).abs() > spacing))
     }) {
         let x0 = starts.remove(k);
-        let more = descend(
-            &x0,
-            budget,
-            cfg.radius,
-            &mut spent,
-            &mut grad_cost,
-            &mut out,
-            &mut visited,
-            &mut eval,
-        )?;
+        let more = descend(&x0, budget, cfg.radius, &mut out, &mut visited, &mut eval)?;
         if !more {
             break;
         }
@@ -250,33 +238,38 @@ pub fn trust_region(
 /// One trust-region descent from `x0`, appending its rollouts to `out` and its points to
 /// `visited`. Returns whether the budget allows another descent: `false` when it ran out, `true`
 /// when the descent settled (a step the region's floor cannot improve, or no step at all).
-#[allow(clippy::too_many_arguments)]
 fn descend(
     x0: &[f64],
     budget: f64,
     radius0: f64,
-    spent: &mut f64,
-    grad_cost: &mut Option<f64>,
     out: &mut Vec<Eval>,
     visited: &mut Vec<Vec<f64>>,
     eval: &mut impl FnMut(usize, &[f64], bool) -> anyhow::Result<Eval>,
 ) -> anyhow::Result<bool> {
     let d = x0.len();
-    let room = |spent: f64, c: &Option<f64>| spent + c.unwrap_or(1.0) <= budget + 1e-9;
-    if !room(*spent, grad_cost) {
+    // Whether the next gradient rollout fits: it costs what the last one did (the first always
+    // runs if the scan left any budget).
+    let room = |out: &[Eval]| {
+        let spent: f64 = out.iter().map(|e| e.cost).sum();
+        let next = out
+            .iter()
+            .rev()
+            .find(|e| e.grad.is_some())
+            .map_or(1.0, |e| e.cost);
+        spent + next <= budget + 1e-9
+    };
+    if !room(out) {
         return Ok(false);
     }
     let mut x = x0.to_vec();
     let first = eval(out.len(), &x, true)?;
-    *spent += first.cost;
-    *grad_cost = Some(first.cost);
     out.push(first.clone());
     visited.push(x.clone());
     let mut cur = first;
     let mut b: Option<Vec<f64>> = None;
     let mut radius = radius0;
     loop {
-        if !room(*spent, grad_cost) {
+        if !room(out) {
             return Ok(false);
         }
         let g = cur.grad.clone().unwrap_or_else(|| vec![0.0; d]);
@@ -294,7 +287,6 @@ fn descend(
             .map(|(a, b)| (a + b).clamp(0.0, 1.0))
             .collect();
         let e = eval(out.len(), &trial, true)?;
-        *spent += e.cost;
         out.push(e.clone());
         visited.push(trial.clone());
         let gy = e.grad.clone().unwrap_or_else(|| vec![0.0; d]);
