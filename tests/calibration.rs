@@ -80,10 +80,7 @@ fn adam_recovers_a_friction_angle_on_a_tiny_scene() {
         cal.evaluate(u, g)
     })
     .unwrap();
-    let best = trace
-        .iter()
-        .min_by(|a, b| a.loss.total_cmp(&b.loss))
-        .unwrap();
+    let best = calibrate::lowest(&trace).unwrap();
     assert!(
         (best.values[0] - truth).abs() < 1.0,
         "fitted {} for a true {truth} from 22 (losses {:?})",
@@ -109,10 +106,7 @@ fn bfgs_recovers_a_friction_angle_from_a_start_near_the_bound_on_a_tiny_scene() 
         trace.iter().any(|e| e.grad.is_some()),
         "no gradient rollout ran"
     );
-    let best = trace
-        .iter()
-        .min_by(|a, b| a.loss.total_cmp(&b.loss))
-        .unwrap();
+    let best = calibrate::lowest(&trace).unwrap();
     assert!(
         (best.values[0] - truth).abs() < 1.0,
         "fitted {} for a true {truth} from 57 (trace {:?})",

@@ -91,6 +91,11 @@ pub struct Eval {
     pub wall_s: f64,
 }
 
+/// The rollout of lowest loss in `trace`: the fit a calibration reports.
+pub fn lowest(trace: &[Eval]) -> Option<&Eval> {
+    trace.iter().min_by(|a, b| a.loss.total_cmp(&b.loss))
+}
+
 /// The height an empty pixel shows: the highest upward-facing plane container, else the domain
 /// walls' inner face.
 pub fn floor_height(scene: &Scene) -> f64 {

@@ -417,15 +417,9 @@ mod tests {
             })
         })
         .expect("runs");
-        let scan_best = trace[..5]
-            .iter()
-            .min_by(|a, b| a.loss.total_cmp(&b.loss))
-            .expect("scanned");
+        let scan_best = crate::calibrate::lowest(&trace[..5]).expect("scanned");
         assert!(scan_best.loss > 0.1 - 1e-12 && (scan_best.u[0] - 0.3).abs() > 0.05);
-        let best = trace
-            .iter()
-            .min_by(|a, b| a.loss.total_cmp(&b.loss))
-            .expect("ran");
+        let best = crate::calibrate::lowest(&trace).expect("ran");
         assert!(
             (best.u[0] - 0.3).abs() < 1e-3,
             "{:?}",
@@ -448,10 +442,7 @@ mod tests {
             quadratic_eval(centre.clone(), vec![40.0]),
         )
         .expect("runs");
-        let best = trace
-            .iter()
-            .min_by(|a, b| a.loss.total_cmp(&b.loss))
-            .expect("ran");
+        let best = crate::calibrate::lowest(&trace).expect("ran");
         assert!((best.u[0] - centre[0]).abs() < 1e-6, "{:?}", best.u);
         // The budget is kept: 5 scans and 6 gradient rollouts.
         let spent: f64 = trace.iter().map(|e| e.cost).sum();
@@ -467,10 +458,7 @@ mod tests {
             quadratic_eval(centre, h),
         )
         .expect("runs");
-        let best = trace
-            .iter()
-            .min_by(|a, b| a.loss.total_cmp(&b.loss))
-            .expect("ran");
+        let best = crate::calibrate::lowest(&trace).expect("ran");
         let want = [0.2, 0.5, 1.0];
         for (got, want) in best.u.iter().zip(want) {
             assert!((got - want).abs() < 1e-3, "{:?}", best.u);

@@ -235,9 +235,7 @@ pub fn run(a: Args) -> Result<()> {
             Ok(e)
         })?
     };
-    let best = trace
-        .iter()
-        .min_by(|x, y| x.loss.total_cmp(&y.loss))
+    let best = calibrate::lowest(&trace)
         .expect("at least one rollout")
         .clone();
     let ident = if a.no_curvature {

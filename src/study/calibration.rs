@@ -341,11 +341,7 @@ pub fn run(
             0xCA1,
             |i, u, g| shared.eval(&cal, "joint/bfgs", i, u, g),
         )?;
-        let best = trace
-            .iter()
-            .min_by(|a, b| a.loss.total_cmp(&b.loss))
-            .expect("a rollout")
-            .clone();
+        let best = calibrate::lowest(&trace).expect("a rollout").clone();
         // The curvature at the truth: what the observation pins down, whatever the optimiser
         // reached.
         let truth: Vec<f64> = cal
