@@ -27,6 +27,12 @@ pub const BASELINES: [Method; 3] = [Method::Random, Method::Cmaes, Method::Sac];
 /// The significance level of the verdicts.
 pub const ALPHA: f64 = 0.05;
 
+/// A p-value as the pages print it: three decimals, or "–" where the test has no non-zero
+/// difference to rank.
+pub fn p_text(p: Option<f64>) -> String {
+    p.map_or("–".into(), |p| format!("{p:.3}"))
+}
+
 /// One-sided exact Wilcoxon signed-rank test of paired samples: the p-value of "a is smaller
 /// than b". Zero differences are dropped (Wilcoxon's rule), tied magnitudes share their mean
 /// rank, and the null distribution of the rank sum is enumerated exactly over the signs. `None`

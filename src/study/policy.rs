@@ -6,7 +6,7 @@
 //! start on the held-out scenes. Every step keeps what it computed under `dir`, so a killed
 //! study resumes; the fit is deterministic and seconds long, so it is simply redone.
 
-use super::optimizers::wilcoxon_less;
+use super::optimizers::{p_text, wilcoxon_less};
 use crate::optim::rmsprop::median;
 use crate::policy::anchor::{self, AnchorConfig};
 use crate::policy::dataset::{self, Sample};
@@ -126,10 +126,6 @@ fn mean(v: &[f64]) -> f64 {
 
 fn std(v: &[f64]) -> f64 {
     super::planning::mean_std(v).1
-}
-
-fn p_text(p: Option<f64>) -> String {
-    p.map_or("–".into(), |p| format!("{p:.3}"))
 }
 
 /// The rows' column of `method` (a trial's field).

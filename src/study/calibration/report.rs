@@ -5,7 +5,7 @@
 use super::{Outcome, Run, CASES, GRAIN, HEIGHT_NOISE, METHODS};
 use crate::calibrate::{self, plot::colour, plot::curves_svg, plot::Curve};
 use crate::optim::report::mean_std;
-use crate::study::optimizers::wilcoxon_less;
+use crate::study::optimizers::{p_text, wilcoxon_less};
 use std::path::Path;
 
 /// How the page names a method.
@@ -174,9 +174,7 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
                 u = case.unit
             ));
             if *m != "cmaes" {
-                let p = wilcoxon_less(&e, &ec)
-                    .map(|p| format!("{p:.3}"))
-                    .unwrap_or_else(|| "–".into());
+                let p = p_text(wilcoxon_less(&e, &ec));
                 md.push_str(&format!("; lower than CMA-ES's: p = {p}"));
             }
             md.push_str(".\n");
@@ -208,10 +206,7 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
                 let (mean, sd) = mean_std(&x);
                 md.push_str(&format!(" {mean:.3} ± {sd:.3} |"));
                 if *m != "cmaes" {
-                    let p = wilcoxon_less(&x, &xc)
-                        .map(|p| format!("{p:.3}"))
-                        .unwrap_or_else(|| "–".into());
-                    md.push_str(&format!(" {p} |"));
+                    md.push_str(&format!(" {} |", p_text(wilcoxon_less(&x, &xc))));
                 }
             }
             md.push('\n');
