@@ -175,21 +175,15 @@ fn predicted(g: &[f64], b: Option<&[f64]>, s: &[f64]) -> f64 {
     -(dot(g, s) + b.map_or(0.0, |b| 0.5 * dot(s, &mul(b, s))))
 }
 
-/// The scan's points: `n` points of a scrambled Sobol sequence in `[0, 1]^d` from `seed`. The
-/// first `2^k` points of a base-2 Sobol sequence fall one in each of `2^k` equal slices of every
-/// coordinate, so four points of one parameter see each quarter of its range.
+/// The scan's points: `n` points of a scrambled Sobol sequence in `[0, 1]^d` from `seed`, so
+/// that four points of one parameter see each quarter of its range.
 pub fn scan_points(d: usize, n: usize, seed: u64) -> Vec<Vec<f64>> {
-    (0..n as u32)
-        .map(|i| {
-            (0..d as u32)
-                .map(|j| sobol_burley::sample(i, j, seed as u32) as f64)
-                .collect()
-        })
-        .collect()
+    crate::optim::sobol_unit(n, d, seed as u32)
 }
 
-/// The scan, then the trust-region descent from its best point, until the next rollout would pass
-/// `budget` forward rollouts' compute (at least the start runs). `eval(i, u, grad)` runs (or
+/// The scan, then trust-region descents, the first from the scan's best point and each later one
+/// from the best scan point in a basin no earlier descent reached, until the next rollout would
+/// pass `budget` forward rollouts' compute (at least the start runs). `eval(i, u, grad)` runs (or
 /// replays) rollout `i`.
 pub fn trust_region(
     u0: &[f64],

@@ -273,13 +273,24 @@ pub fn theta_init(k: usize) -> [f64; 5] {
     std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))
 }
 
-/// The first `n` points of the Owen-scrambled Sobol sequence over [−1, 1]⁵ (`sobol_burley`),
-/// scrambled by `seed`.
-pub fn sobol_thetas(n: usize, seed: u32) -> Vec<[f64; 5]> {
+/// The first `n` points of the Owen-scrambled Sobol sequence over `[0, 1]^d` (`sobol_burley`),
+/// scrambled by `seed`. The first `2^k` points fall one in each of `2^k` equal slices of every
+/// coordinate.
+pub fn sobol_unit(n: usize, d: usize, seed: u32) -> Vec<Vec<f64>> {
     (0..n as u32)
         .map(|i| {
-            std::array::from_fn(|d| 2.0 * sobol_burley::sample(i, d as u32, seed) as f64 - 1.0)
+            (0..d as u32)
+                .map(|j| sobol_burley::sample(i, j, seed) as f64)
+                .collect()
         })
+        .collect()
+}
+
+/// The first `n` points of the Owen-scrambled Sobol sequence over [−1, 1]⁵, scrambled by `seed`.
+pub fn sobol_thetas(n: usize, seed: u32) -> Vec<[f64; 5]> {
+    sobol_unit(n, 5, seed)
+        .into_iter()
+        .map(|p| std::array::from_fn(|d| 2.0 * p[d] - 1.0))
         .collect()
 }
 
