@@ -19,6 +19,7 @@ fn observed(truth: f64, step: usize, heights: bool) -> Observed {
     Observed {
         path: PathBuf::from(format!("tiny@{step}")),
         step: Some(step),
+        body: None,
         what: calibrate::observe(&scene, step, heights, 0.005, 0.0, 1, Some(1)).unwrap(),
     }
 }
@@ -68,6 +69,51 @@ fn observation_losses_gradient_matches_central_differences_through_the_collapse(
             g[i]
         );
     }
+}
+
+#[test]
+fn each_layers_friction_angle_gets_its_own_gradient_through_a_layered_collapse() {
+    // Two layers of their own materials: a parameter per material, each gradient the sum over
+    // the bodies made of it. The layers' gradients must differ (the bottom holds the pile's toe,
+    // the top slides over it) and each must match its central difference.
+    let path = common::test_scene_path("calibration_layers_tiny.ron");
+    let mut scene = powderlab::scene::Scene::load(&path).unwrap();
+    let names = [
+        "layer0.friction_deg".to_string(),
+        "layer1.friction_deg".to_string(),
+    ];
+    let p = params::parse(&scene, &names, &[]).unwrap();
+    p[0].apply(&mut scene, 38.0);
+    p[1].apply(&mut scene, 24.0);
+    let obs: Vec<Observed> = [25, 50]
+        .iter()
+        .map(|&step| Observed {
+            path: PathBuf::from(format!("layers@{step}")),
+            step: Some(step),
+            body: None,
+            what: calibrate::observe(&scene, step, true, 0.005, 0.0, 1, Some(1)).unwrap(),
+        })
+        .collect();
+    let mut cal = Calibration::new(&scene, p, &obs, None).unwrap();
+    cal.threads = Some(1);
+    let u = vec![0.4, 0.5];
+    let g = cal.evaluate(&u, true).unwrap().grad.unwrap();
+    for i in 0..u.len() {
+        let (mut up, mut dn) = (u.clone(), u.clone());
+        up[i] += H;
+        dn[i] -= H;
+        let fd = (cal.evaluate(&up, false).unwrap().loss - cal.evaluate(&dn, false).unwrap().loss)
+            / (2.0 * H);
+        let rel = (fd - g[i]).abs() / fd.abs().max(g[i].abs()).max(1e-12);
+        assert!(
+            rel < TOL,
+            "{}: adjoint {:e}, central difference {fd:e} (relative {rel:e})",
+            cal.params[i].label,
+            g[i]
+        );
+    }
+    let rel = (g[0] - g[1]).abs() / g[0].abs().max(g[1].abs());
+    assert!(rel > 0.1, "the layers' gradients {g:?} are the same");
 }
 
 #[test]
@@ -174,6 +220,28 @@ fn bad_or_mismatched_observations_are_refused_in_one_line() {
         assert!(err.contains(file) && err.contains(want), "{obs}: {err}");
         assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     }
+    // A well-formed cloud of a body the scene does not have.
+    let inside = dir.join("inside.ply");
+    let pts: Vec<glam::DVec3> = (0..50)
+        .map(|i| glam::DVec3::new(0.02 + 0.001 * i as f64, 0.01, 0.01))
+        .collect();
+    std::fs::write(&inside, powderlab::calibrate::observation::cloud_ply(&pts)).unwrap();
+    let (code, err) = powderlab(&[
+        "calibrate",
+        scene,
+        "--observed",
+        &format!("layer9={}@40", inside.display()),
+        "--fit",
+        "friction_deg",
+        "--out",
+        dir.join("out").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains(inside.to_str().unwrap()) && err.contains("no body 'layer9'"),
+        "{err}"
+    );
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     let (code, err) = powderlab(&[
         "calibrate",
         scene,
@@ -277,4 +345,71 @@ fn calibrate_writes_a_loadable_fitted_scene_and_resumes_from_its_journal() {
     let (code, err) = powderlab(&other);
     assert_eq!(code, 2);
     assert!(err.contains("other settings"), "{err}");
+}
+
+#[test]
+fn one_layers_cloud_observed_apart_calibrates_that_layer() {
+    // `observe --body` writes one body's particles; `calibrate --observed BODY=FILE@STEP` fits
+    // against that body alone. The top layer is seen at 35°, its start is 25°.
+    let dir = std::env::temp_dir().join(format!("powderlab-calib-body-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = common::test_scene_path("calibration_layers_tiny.ron");
+    let scene = scene.to_str().unwrap();
+    let obs = dir.join("top.ply");
+    let (code, err) = powderlab(&[
+        "observe",
+        scene,
+        "--body",
+        "bed1",
+        "--step",
+        "40",
+        "--out",
+        obs.to_str().unwrap(),
+        "--set",
+        "layer1.friction_deg=35",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let n = match powderlab::calibrate::observation::read(&obs).unwrap() {
+        powderlab::calibrate::observation::Observation::Cloud(p) => p.len(),
+        _ => panic!("a cloud"),
+    };
+    let scene_ = powderlab::scene::Scene::load(scene).unwrap();
+    let mut sim = powderlab::sim::Simulation::new(&scene_, &Default::default()).unwrap();
+    assert_eq!(n, sim.body_states()[1].x.len(), "only bed1's particles");
+    let out = dir.join("run");
+    let (code, err) = powderlab(&[
+        "calibrate",
+        scene,
+        "--observed",
+        &format!("bed1={}@40", obs.display()),
+        "--fit",
+        "layer1.friction_deg",
+        "--start",
+        "layer1.friction_deg=25",
+        "--method",
+        "bfgs",
+        "--budget",
+        "20",
+        "--no-curvature",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    let best = summary["best"]["values"][0].as_f64().unwrap();
+    assert!((best - 35.0).abs() < 1.0, "fitted {best} for a true 35");
+    // A height map cannot be of one body.
+    let (code, err) = powderlab(&[
+        "observe",
+        scene,
+        "--body",
+        "bed1",
+        "--out",
+        dir.join("top.csv").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2);
+    assert!(err.contains("--body bed1") && err.contains(".ply"), "{err}");
 }

@@ -78,6 +78,13 @@ pub enum Loss {
     HeightField(HeightObservation),
     /// The Chamfer distance between all bodies' particles and an observed point cloud.
     Chamfer(chamfer::ObservedCloud),
+    /// `inner` on the particles of some bodies only (indices in scene order): an observation of
+    /// one body, such as a coloured layer segmented in a camera image. The other bodies'
+    /// particles get no gradient.
+    Only {
+        bodies: Vec<usize>,
+        inner: Box<Loss>,
+    },
 }
 
 /// An observed height map and the soft height's settings ([`crate::math::heightfield`]).
@@ -136,6 +143,16 @@ impl Loss {
     /// The loss and `∂L/∂x` per body.
     pub fn eval(&self, xs: &[Vec<DVec3>]) -> (f64, Vec<Vec<DVec3>>) {
         match self {
+            Loss::Only { bodies, inner } => {
+                let some: Vec<Vec<DVec3>> = bodies.iter().map(|&b| xs[b].clone()).collect();
+                let (l, g_some) = inner.eval(&some);
+                let mut g: Vec<Vec<DVec3>> =
+                    xs.iter().map(|x| vec![DVec3::ZERO; x.len()]).collect();
+                for (&b, gb) in bodies.iter().zip(g_some) {
+                    g[b] = gb;
+                }
+                return (l, g);
+            }
             Loss::HeightField(o) => {
                 return on_all_bodies(xs, |all| {
                     let (l, g_h) = heightfield::squared_error(&o.heights(all), &o.observed);
@@ -192,7 +209,10 @@ impl Loss {
                             l += w[b][i].dot(*p);
                             w[b][i]
                         }
-                        Loss::Dosing(_) | Loss::HeightField(_) | Loss::Chamfer(_) => {
+                        Loss::Dosing(_)
+                        | Loss::HeightField(_)
+                        | Loss::Chamfer(_)
+                        | Loss::Only { .. } => {
                             unreachable!("handled above")
                         }
                     })
@@ -446,6 +466,27 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_loss_on_some_bodies_sees_only_theirs_and_pulls_only_theirs() {
+        let t = DVec3::new(0.1, 0.0, 0.2);
+        let xs = vec![
+            vec![DVec3::new(0.1, 0.3, 0.6)],
+            vec![DVec3::new(0.4, 0.0, 0.2), DVec3::new(0.1, 0.0, 0.5)],
+            vec![DVec3::new(0.1, 0.7, 0.2)],
+        ];
+        let only = Loss::Only {
+            bodies: vec![2, 1],
+            inner: Box::new(Loss::SumDistance(t)),
+        };
+        let (l, g) = only.eval(&xs);
+        // Bodies 2 and 1: 0.7 + 0.3 + 0.3.
+        assert!((l - 1.3).abs() < 1e-15, "{l}");
+        assert_eq!(g[0], vec![DVec3::ZERO]);
+        let (_, g1) = Loss::SumDistance(t).eval(&xs[1..2]);
+        assert_eq!(g[1], g1[0]);
+        assert!((g[2][0] - DVec3::Y).length() < 1e-15);
     }
 
     #[test]

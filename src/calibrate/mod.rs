@@ -209,7 +209,20 @@ impl Calibration {
                     o.path.display()
                 ));
             }
-            let (loss, n) = observation_loss(scene, o, tau)?;
+            let (mut loss, n) = observation_loss(scene, o, tau)?;
+            if let Some(name) = &o.body {
+                let b = scene.bodies.iter().position(|b| &b.name == name).ok_or_else(|| {
+                    let names: Vec<&str> = scene.bodies.iter().map(|b| b.name.as_str()).collect();
+                    format!(
+                        "{}: the scene has no body '{name}' (it has {names:?}); write BODY=FILE with one of them",
+                        o.path.display()
+                    )
+                })?;
+                loss = Loss::Only {
+                    bodies: vec![b],
+                    inner: Box::new(loss),
+                };
+            }
             residuals += n;
             terms.push((step, loss));
         }
@@ -336,15 +349,10 @@ pub fn observe(
     seed: u64,
     threads: Option<usize>,
 ) -> anyhow::Result<Observation> {
-    let mut sim = Simulation::new(
-        scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
-    )?;
-    sim.run(step, |_| {})?;
-    let xs: Vec<DVec3> = sim.body_states().into_iter().flat_map(|b| b.x).collect();
+    let xs: Vec<DVec3> = positions(scene, step, threads)?
+        .into_iter()
+        .flatten()
+        .collect();
     let mut rng = crate::util::SplitMix64(seed);
     if heights {
         let (lo, hi) = scene.domain();
@@ -372,4 +380,44 @@ pub fn observe(
             .collect();
         Ok(Observation::Cloud(pts))
     }
+}
+
+/// Every body's particle positions at global `step`.
+fn positions(
+    scene: &Scene,
+    step: usize,
+    threads: Option<usize>,
+) -> anyhow::Result<Vec<Vec<DVec3>>> {
+    let mut sim = Simulation::new(
+        scene,
+        &SimOptions {
+            threads,
+            ..Default::default()
+        },
+    )?;
+    sim.run(step, |_| {})?;
+    Ok(sim.body_states().into_iter().map(|b| b.x).collect())
+}
+
+/// What a camera that tells the bodies apart (coloured layers) would see of `scene` at global
+/// `step`: one point cloud per body, scene order, every point with Gaussian noise of standard
+/// deviation `noise` metres per axis from `seed`. Each is an observation `BODY=FILE`.
+pub fn observe_bodies(
+    scene: &Scene,
+    step: usize,
+    noise: f64,
+    seed: u64,
+    threads: Option<usize>,
+) -> anyhow::Result<Vec<Observation>> {
+    let mut rng = crate::util::SplitMix64(seed);
+    Ok(positions(scene, step, threads)?
+        .into_iter()
+        .map(|xs| {
+            Observation::Cloud(
+                xs.into_iter()
+                    .map(|p| p + noise * DVec3::new(rng.normal(), rng.normal(), rng.normal()))
+                    .collect(),
+            )
+        })
+        .collect())
 }

@@ -12,8 +12,10 @@
 //!   (metres per unit) and optionally `height_offset` (metres, default 0): the height is
 //!   `offset + scale·value`, and a value of 0 marks an unseen pixel (a depth camera's hole).
 //!
-//! Each is tied to a global step: `FILE@STEP`, or the scene's horizon without one. Every failure
-//! is one line naming the file and what is wrong.
+//! Each is tied to a global step: `FILE@STEP`, or the scene's horizon without one. `BODY=FILE`
+//! (a body's name, then `=`) compares it with that body's particles only: a coloured layer
+//! segmented in a side camera's images, or a tracer. Every failure is one line naming the file
+//! and what is wrong.
 
 use crate::math::heightfield::HeightGrid;
 use glam::DVec3;
@@ -38,6 +40,8 @@ pub struct Observed {
     pub path: PathBuf,
     /// `None`: the scene's horizon.
     pub step: Option<usize>,
+    /// The body whose particles it shows (`None`: every body's).
+    pub body: Option<String>,
     pub what: Observation,
 }
 
@@ -50,9 +54,20 @@ impl Observation {
     }
 }
 
-/// Parses `FILE` or `FILE@STEP` and reads the file.
+/// Parses `[BODY=]FILE[@STEP]` and reads the file. `BODY` is a scene's body name: letters,
+/// digits, `_` and `-`.
 pub fn read_arg(arg: &str) -> Result<Observed, String> {
-    let (file, step) = match arg.rsplit_once('@') {
+    let (body, rest) = match arg.split_once('=') {
+        Some((b, f))
+            if !b.is_empty()
+                && b.chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-') =>
+        {
+            (Some(b.to_string()), f)
+        }
+        _ => (None, arg),
+    };
+    let (file, step) = match rest.rsplit_once('@') {
         Some((f, s)) if !s.is_empty() && s.chars().all(|c| c.is_ascii_digit()) => (
             f,
             Some(s.parse::<usize>().map_err(|_| {
@@ -61,13 +76,14 @@ pub fn read_arg(arg: &str) -> Result<Observed, String> {
                 )
             })?),
         ),
-        _ => (arg, None),
+        _ => (rest, None),
     };
     let path = PathBuf::from(file);
     Ok(Observed {
         what: read(&path)?,
         path,
         step,
+        body,
     })
 }
 
@@ -392,6 +408,21 @@ mod tests {
             Observation::Heights { grid, heights } => (grid, heights),
             Observation::Cloud(_) => panic!("{}: a height map", p.display()),
         }
+    }
+
+    #[test]
+    fn a_body_prefix_and_a_step_suffix_are_read_off_the_argument() {
+        let p = tmp("cloud.ply", &cloud_ply(&[DVec3::new(0.01, 0.02, 0.03)]));
+        let o = read_arg(&format!("bed-1={}@40", p.display())).unwrap();
+        assert_eq!(
+            (o.body.as_deref(), o.step, o.path.as_path()),
+            (Some("bed-1"), Some(40), p.as_path())
+        );
+        let o = read_arg(&p.display().to_string()).unwrap();
+        assert_eq!((o.body, o.step), (None, None));
+        // An '=' inside a folder name is part of the path, not a body.
+        let e = read_arg("runs/a=b/none.ply@3").unwrap_err();
+        assert!(e.contains("runs/a=b/none.ply"), "{e}");
     }
 
     #[test]

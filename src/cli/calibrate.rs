@@ -18,7 +18,8 @@ pub struct Args {
     scene: PathBuf,
     /// An observation: a height map (.csv, or 16-bit .png) or a point cloud (.ply), optionally
     /// at a global step
-    /// (FILE@STEP; default the scene's last step). Repeat for a sequence.
+    /// (FILE@STEP; default the scene's last step), optionally of one body's particles only
+    /// (BODY=FILE: a coloured layer segmented from a camera's images). Repeat for a sequence.
     #[arg(long, required = true)]
     observed: Vec<String>,
     /// The parameters to fit, comma separated: friction_deg, youngs_modulus, poisson_ratio
@@ -430,6 +431,10 @@ pub struct ObserveArgs {
     /// The global step observed (default the scene's last).
     #[arg(long)]
     step: Option<usize>,
+    /// Only this body's particles (a .ply: a coloured layer segmented from a side camera's
+    /// images); calibrate reads the file as BODY=FILE.
+    #[arg(long)]
+    body: Option<String>,
     /// Pixel size of a height map (m; default the particle spacing, about the millimetre a
     /// depth camera above a bench resolves).
     #[arg(long)]
@@ -483,7 +488,21 @@ pub fn observe(a: ObserveArgs) -> Result<()> {
         Some(s) => s,
         None => bail!("--step: the scene sets no steps; say which global step to observe"),
     };
-    let o = calibrate::observe(&scene, step, heights, pixel, a.noise, a.seed, a.threads)?;
+    let o = match &a.body {
+        None => calibrate::observe(&scene, step, heights, pixel, a.noise, a.seed, a.threads)?,
+        Some(name) => {
+            let names: Vec<&str> = scene.bodies.iter().map(|b| b.name.as_str()).collect();
+            let Some(b) = names.iter().position(|n| n == name) else {
+                bail!("--body {name}: the scene has no such body (it has {names:?})");
+            };
+            if heights {
+                bail!(
+                    "--body {name}: one body's particles are written as a point cloud; name a .ply --out"
+                );
+            }
+            calibrate::observe_bodies(&scene, step, a.noise, a.seed, a.threads)?.swap_remove(b)
+        }
+    };
     let bytes = match &o {
         Observation::Heights { grid, heights } if ext == "png" => {
             // 10 µm per unit spans 0.65 m; the lowest height of the domain reads 1, not 0
