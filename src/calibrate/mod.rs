@@ -248,6 +248,15 @@ impl Calibration {
         s
     }
 
+    /// The unit coordinates of parameter values, in the order of `params` (not clamped).
+    pub fn to_unit(&self, values: &[f64]) -> Vec<f64> {
+        self.params
+            .iter()
+            .zip(values)
+            .map(|(p, &v)| p.to_unit(v))
+            .collect()
+    }
+
     /// The unit coordinates of the scene's own values (clamped to the box).
     pub fn start(&self) -> Vec<f64> {
         self.params

@@ -701,6 +701,15 @@ fn calibration_cmd(a: Args) -> Result<()> {
             total / calibration::CASES.len() as f64,
         )?;
     }
+    // The layered bed: its pairs (and each pair's rollout at the truth) and its curvature.
+    let layers = {
+        use calibration::layers as l;
+        let pairs = (l::PAIRS_PER_SEED * a.seeds) as f64;
+        let k = l::LAYERS as f64;
+        pairs * l::METHODS.len() as f64 * (l::BUDGET_FACTOR * budget + 1.0) + 1.0 + 2.0 * k * k
+    };
+    super::announce_work(std::path::Path::new(calibration::layers::SCENE), layers)?;
+    let total = total + layers;
     let pb = super::bar(total.ceil() as u64, a.json);
     let pb2 = pb.clone();
     let done = std::sync::Mutex::new(0.0f64);
@@ -735,8 +744,8 @@ fn calibration_cmd(a: Args) -> Result<()> {
         &a,
         &md,
         start,
-        "calibration.md and calibration.svg",
-        json!({ "runs": outcome.runs }),
+        "calibration.md, calibration.svg and calibration_layers.svg",
+        json!({ "runs": outcome.runs, "layers": outcome.layers.runs }),
     );
     Ok(())
 }

@@ -15,9 +15,13 @@
 //! case fits friction angle, Young's modulus and floor friction together on the collapse and
 //! reports the curvature: which of them one pile pins down.
 //!
+//! A fourth case fits one friction angle per layer of a layered bed from the surface seen
+//! through its collapse ([`layers`]): a calibration with several parameters.
+//!
 //! Every rollout goes to `rollouts.jsonl` as it finishes ([`crate::calibrate::Journal`]), so a
 //! killed study resumes. The page is written by [`report`].
 
+pub mod layers;
 mod report;
 
 use crate::calibrate::observation::Observed;
@@ -149,6 +153,7 @@ fn problem(
     let observed = Observed {
         path: PathBuf::from(format!("synthetic {}={truth}", case.param)),
         step: None,
+        body: None,
         what: obs,
     };
     let mut cal = Calibration::new(&scene, fit, &[observed], None).map_err(anyhow::Error::msg)?;
@@ -176,6 +181,25 @@ fn backward_costs(dir: &Path) -> anyhow::Result<Vec<f64>> {
     }
     crate::util::write_atomic(&path, serde_json::to_string(&v)?.as_bytes())?;
     Ok(v)
+}
+
+/// Keeps `settings` in `dir/name`, or refuses a folder whose journal was made with others (the
+/// journal keys rollouts by method, index and point, not by the observation).
+fn same_settings(dir: &Path, name: &str, settings: &serde_json::Value) -> anyhow::Result<()> {
+    let path = dir.join(name);
+    match std::fs::read_to_string(&path) {
+        Ok(t) if serde_json::from_str::<serde_json::Value>(&t).ok().as_ref() != Some(settings) => {
+            anyhow::bail!(
+                "--out {}: holds a calibration study with other observations; delete it or choose another --out",
+                dir.parent().unwrap_or(dir).display()
+            )
+        }
+        Ok(_) => Ok(()),
+        Err(_) => Ok(crate::util::write_atomic(
+            &path,
+            settings.to_string().as_bytes(),
+        )?),
+    }
 }
 
 /// The start of pair `seed`: uniform in the case's start range.
@@ -215,17 +239,17 @@ pub fn run(
         "scenes": CASES.iter().map(|c| std::fs::read_to_string(c.scene).unwrap_or_default()).collect::<Vec<_>>(),
         "truths": CASES.iter().map(|c| c.truths.to_vec()).collect::<Vec<_>>(),
     });
-    let settings_path = dir.join("settings.json");
-    match std::fs::read_to_string(&settings_path) {
-        Ok(t) if serde_json::from_str::<serde_json::Value>(&t).ok() != Some(settings.clone()) => {
-            anyhow::bail!(
-                "--out {}: holds a calibration study with other observations; delete it or choose another --out",
-                dir.parent().unwrap_or(dir).display()
-            )
-        }
-        Ok(_) => {}
-        Err(_) => crate::util::write_atomic(&settings_path, settings.to_string().as_bytes())?,
-    }
+    same_settings(dir, "settings.json", &settings)?;
+    // The layered bed's, apart, so that the single-parameter cases' folder stays valid.
+    let layer_settings = serde_json::json!({
+        "noise": HEIGHT_NOISE,
+        "pixel_per_spacing": PIXEL_PER_SPACING,
+        "scene": std::fs::read_to_string(layers::SCENE).unwrap_or_default(),
+        "truths": layers::TRUTHS,
+        "starts": layers::STARTS,
+        "frame_every": layers::FRAME_EVERY,
+    });
+    same_settings(dir, "settings_layers.json", &layer_settings)?;
     let journal = Mutex::new(Journal::open(&dir.join("rollouts.jsonl"))?);
     let shared = Shared {
         journal: &journal,
@@ -299,6 +323,7 @@ pub fn run(
         let observed = Observed {
             path: PathBuf::from("synthetic joint"),
             step: None,
+            body: None,
             what: obs,
         };
         // Start off the truth in every parameter.
@@ -321,12 +346,7 @@ pub fn run(
         let best = calibrate::lowest(&trace).expect("a rollout").clone();
         // The curvature at the truth: what the observation pins down, whatever the optimiser
         // reached.
-        let truth: Vec<f64> = cal
-            .params
-            .iter()
-            .zip([30.0, 5.0e4, 0.5])
-            .map(|(p, v)| p.to_unit(v))
-            .collect();
+        let truth = cal.to_unit(&[30.0, 5.0e4, 0.5]);
         let mut k = 0;
         let id = calibrate::identifiability(&cal, &truth, CURVATURE_STEP, |u| {
             let e = shared.eval(&cal, "joint/curvature", k, u, false);
@@ -349,11 +369,36 @@ pub fn run(
         }
         pts
     };
+    // The layered bed: its own backward cost (kept apart, so that the single-parameter cases
+    // replay as they ran).
+    let layer_cost = {
+        let path = dir.join("backward_cost_layers.json");
+        match std::fs::read_to_string(&path)
+            .ok()
+            .and_then(|t| serde_json::from_str::<f64>(&t).ok())
+        {
+            Some(c) => c,
+            None => {
+                let (cal, _, _) = layers::problem(0, Some(1), 0.0)?;
+                let c = calibrate::measure_backward_cost(&cal, &cal.start(), 3)?;
+                crate::util::write_atomic(&path, serde_json::to_string(&c)?.as_bytes())?;
+                c
+            }
+        }
+    };
+    let layers = layers::run(
+        &shared,
+        layers::PAIRS_PER_SEED * seeds,
+        budget,
+        threads,
+        layer_cost,
+    )?;
     Ok(Outcome {
         runs,
         joint,
         costs,
         grain,
+        layers,
     })
 }
 
@@ -368,6 +413,8 @@ pub struct Outcome {
     pub costs: Vec<f64>,
     /// The collapse's loss at [`GRAIN`]'s points: (friction angle, loss, ∂L/∂φ per degree).
     pub grain: Vec<(f64, f64, f64)>,
+    /// The layered bed's runs and curvature.
+    pub layers: layers::LayerOutcome,
 }
 
 /// The sweep that shows the collapse's loss at grain scale: (true friction angle, from, to,

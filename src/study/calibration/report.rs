@@ -9,12 +9,57 @@ use crate::study::optimizers::{p_text, wilcoxon_less};
 use std::path::Path;
 
 /// How the page names a method.
-fn title(method: &str) -> &'static str {
+pub(super) fn title(method: &str) -> &'static str {
     match method {
         "adam" => "Adam",
         "bfgs" => "BFGS",
         _ => "CMA-ES",
     }
+}
+
+/// Each method's error at `budgets`, read off each run's curve (compute, error of the best
+/// rollout so far), with a one-sided Wilcoxon p that it is lower than CMA-ES's (the last method):
+/// the header, then a row per budget. `curves[m]` are method `m`'s runs, paired in order.
+pub(super) fn budgets_table(
+    methods: &[&str],
+    curves: &[Vec<&[(f64, f64)]>],
+    budgets: &[f64],
+    what: &str,
+    digits: usize,
+) -> String {
+    let mut md = format!(
+        "| compute (forward rollouts) |{}\n|---|{}\n",
+        methods
+            .iter()
+            .map(|m| if *m == "cmaes" {
+                format!(" {} {what} |", title(m))
+            } else {
+                format!(" {0} {what} | {0}: p |", title(m))
+            })
+            .collect::<String>(),
+        "---|".repeat(2 * methods.len() - 1)
+    );
+    for &b in budgets {
+        let at = |c: &[(f64, f64)]| {
+            c.iter()
+                .take_while(|p| p.0 <= b + 1e-9)
+                .last()
+                .map_or(f64::NAN, |p| p.1)
+        };
+        let cma = curves.last().expect("CMA-ES is the last method");
+        let xc: Vec<f64> = cma.iter().map(|c| at(c)).collect();
+        md.push_str(&format!("| {b} |"));
+        for (m, runs) in methods.iter().zip(curves) {
+            let x: Vec<f64> = runs.iter().map(|c| at(c)).collect();
+            let (mean, sd) = mean_std(&x);
+            md.push_str(&format!(" {mean:.digits$} ± {sd:.digits$} |"));
+            if *m != "cmaes" {
+                md.push_str(&format!(" {} |", p_text(wilcoxon_less(&x, &xc))));
+            }
+        }
+        md.push('\n');
+    }
+    md
 }
 
 /// The compute after which a run's best-so-far error stays within `tol`: the first point of
@@ -179,38 +224,18 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
             }
             md.push_str(".\n");
         }
-        md.push_str(&format!(
-            "\nAt smaller budgets (the error of the best rollout so far, read off each run's curve; p: lower than CMA-ES's):\n\n| compute (forward rollouts) |{}\n|---|{}\n",
-            METHODS
-                .iter()
-                .map(|m| if *m == "cmaes" {
-                    format!(" {} error |", title(m))
-                } else {
-                    format!(" {0} error | {0}: p |", title(m))
-                })
-                .collect::<String>(),
-            "---|".repeat(2 * METHODS.len() - 1)
+        md.push_str("\nAt smaller budgets (the error of the best rollout so far, read off each run's curve; p: lower than CMA-ES's):\n\n");
+        let of_method: Vec<Vec<&[(f64, f64)]>> = by
+            .iter()
+            .map(|runs| runs.iter().map(|r| r.curve.as_slice()).collect())
+            .collect();
+        md.push_str(&budgets_table(
+            &METHODS,
+            &of_method,
+            &[10.0, 20.0, budget],
+            "error",
+            3,
         ));
-        for b in [10.0, 20.0, budget] {
-            let at = |r: &Run| {
-                r.curve
-                    .iter()
-                    .take_while(|p| p.0 <= b + 1e-9)
-                    .last()
-                    .map_or(f64::NAN, |p| p.1)
-            };
-            let xc: Vec<f64> = cma.iter().map(|r| at(r)).collect();
-            md.push_str(&format!("| {b} |"));
-            for (m, runs) in METHODS.iter().zip(&by) {
-                let x: Vec<f64> = runs.iter().map(|r| at(r)).collect();
-                let (mean, sd) = mean_std(&x);
-                md.push_str(&format!(" {mean:.3} ± {sd:.3} |"));
-                if *m != "cmaes" {
-                    md.push_str(&format!(" {} |", p_text(wilcoxon_less(&x, &xc))));
-                }
-            }
-            md.push('\n');
-        }
         md.push_str(&format!(
             "\nCompute until the best rollout stays within {tol}{u} of the truth, median over the pairs that get there:",
             tol = case.tolerance,
@@ -322,6 +347,7 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
         md.push_str(&format!("| {v:.1} | {l:.4e} | {g:.3e} |\n"));
     }
     md.push_str("\n![parameter error against compute](calibration.svg)\n\nBold lines: friction angle; pale lines: floor friction. One line per (true value, start) pair.\n");
+    md.push_str(&super::layers::report(&o.layers, budget, results)?);
     Ok(md)
 }
 
