@@ -33,9 +33,10 @@ pub struct Args {
     /// Start NAME=VALUE instead of the scene's value.
     #[arg(long)]
     start: Vec<String>,
-    /// cmaes (CMA-ES on the forward loss only; the default, docs/results/calibration.md), bfgs
-    /// (a scan, then a bounded trust-region quasi-Newton method on the adjoint gradient) or adam
-    /// (Adam on the adjoint gradient).
+    /// cmaes (CMA-ES on the forward loss only; the default, best with one parameter,
+    /// docs/results/calibration.md), bfgs (a scan, then a bounded trust-region quasi-Newton
+    /// method on the adjoint gradient; best with several, such as one per layer) or adam (Adam on
+    /// the adjoint gradient).
     #[arg(long, default_value = "cmaes")]
     method: String,
     /// Compute in forward rollouts; a gradient rollout counts 1 + the backward pass's cost.
