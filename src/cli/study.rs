@@ -738,7 +738,12 @@ fn calibration_cmd(a: Args) -> Result<()> {
     );
     powderlab::util::create_output_dir(&a.results, "--results")?;
     let machine = powderlab::study::optimizers::machine();
-    let md = calibration::report(&outcome, &command, &machine, budget, &a.results)?;
+    let mut md = calibration::report(&outcome, &command, &machine, budget, &a.results)?;
+    md.push_str(&calibration::layers::report(
+        &outcome.layers,
+        budget,
+        &a.results,
+    )?);
     powderlab::util::write_atomic(&a.results.join("calibration.md"), md.as_bytes())?;
     print_page(
         &a,

@@ -347,7 +347,6 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
         md.push_str(&format!("| {v:.1} | {l:.4e} | {g:.3e} |\n"));
     }
     md.push_str("\n![parameter error against compute](calibration.svg)\n\nBold lines: friction angle; pale lines: floor friction. One line per (true value, start) pair.\n");
-    md.push_str(&super::layers::report(&o.layers, budget, results)?);
     Ok(md)
 }
 
