@@ -47,6 +47,10 @@ pub struct Args {
     /// refine: knots per control channel of each dimension tried (6 parameters per knot).
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 5, 16])]
     knots: Vec<usize>,
+    /// refine: start each seed from a Sobol point whose plain skill delivers at least this much
+    /// more than the target (the target's unit), instead of Θ_init(k).
+    #[arg(long)]
+    over: Option<f64>,
     /// optimizers, refine, directions: where the page goes.
     #[arg(long, default_value = "docs/results")]
     results: PathBuf,
@@ -454,16 +458,21 @@ fn refine_cmd(a: Args) -> Result<()> {
     }
     let (scene, problem, unit) = skill_problem(&a, "scenes/precise_dosing.ron")?;
     // At most: trust's rollouts depend on its accepted steps, and never pass the budget.
-    let per_seed = 3 * a.budget + refine::gradient_rollouts(a.budget);
-    super::announce_work(&scene, (a.knots.len() * a.seeds * 4 * a.budget) as f64)?;
+    let per_seed = 5 * a.budget + refine::gradient_rollouts(a.budget);
+    super::announce_work(&scene, (a.knots.len() * a.seeds * 6 * a.budget) as f64)?;
     let pb = super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.json);
     let pb2 = pb.clone();
     let store = refine::Store::open(&a.out.join("refine"), Box::new(move || pb2.inc(1)))?;
     let start = Instant::now();
-    let cells = refine::run(&problem, &a.knots, a.seeds, a.budget, &store)?;
+    if a.over.is_some_and(|g| !(g.is_finite() && g >= 0.0)) {
+        bail!("study refine: --over must be a finite amount of at least 0 (the target's unit)");
+    }
+    let starts = refine::starts(&store, &problem, a.over, a.seeds)?;
+    let cells = refine::run(&problem, &a.knots, &starts, a.budget, &store)?;
     pb.finish_and_clear();
+    let over = a.over.map_or(String::new(), |g| format!(" --over {g}"));
     let command = format!(
-        "powderlab study refine --scene {} --knots {} --seeds {} --budget {}",
+        "powderlab study refine --scene {}{over} --knots {} --seeds {} --budget {}",
         scene.display(),
         a.knots
             .iter()
@@ -473,7 +482,7 @@ fn refine_cmd(a: Args) -> Result<()> {
         a.seeds,
         a.budget
     );
-    let md = refine::report(&cells, &command, unit, a.budget);
+    let md = refine::report(&cells, &command, unit, a.budget, a.over);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("refinement.md"), md.as_bytes())?;
     print_page(&a, &md, start, "refinement.md", json!({ "cells": cells }));

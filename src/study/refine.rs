@@ -53,6 +53,9 @@ pub struct Rollout {
     pub wall_s: f64,
     #[serde(default)]
     pub grad: Option<Vec<f64>>,
+    /// `target − delivered`, signed (the line method solves it for 0).
+    #[serde(default)]
+    pub indicator: f64,
 }
 
 type Key = (usize, String, usize, usize);
@@ -95,6 +98,7 @@ impl Store {
     fn get(
         &self,
         problem: &Problem,
+        theta: [f64; 5],
         knots: usize,
         method: &str,
         seed: usize,
@@ -113,8 +117,7 @@ impl Store {
                 return Ok(r.clone());
             }
         }
-        let theta = theta_init(seed);
-        let res = problem.residual(theta, knots);
+        let res = problem.residual(theta, knots.max(1));
         let (o, grad) = problem.evaluate_residual(theta, &res, w, with_grad, true)?;
         let forward = o.particles as f64 * o.steps as f64 * o.substeps as f64;
         let r = Rollout {
@@ -128,6 +131,7 @@ impl Store {
             cost: forward * if with_grad { 1.0 + BACKWARD_COST } else { 1.0 },
             wall_s: o.wall_s,
             grad,
+            indicator: o.indicator,
         };
         let mut f = self.file.lock().expect("lock");
         writeln!(f, "{}", serde_json::to_string(&r)?)?;
@@ -138,21 +142,84 @@ impl Store {
     }
 }
 
-/// Adam on the adjoint gradient.
-fn adam(
-    s: &Store,
-    p: &Problem,
+/// One seed's refinement problem: the store, the problem, the dimension, the seed and its
+/// start Θ.
+struct Ctx<'a> {
+    s: &'a Store,
+    p: &'a Problem,
     knots: usize,
     seed: usize,
-    budget: usize,
-) -> anyhow::Result<Vec<Rollout>> {
-    let d = 6 * knots;
+    theta: [f64; 5],
+}
+
+impl Ctx<'_> {
+    fn get(
+        &self,
+        method: &str,
+        index: usize,
+        w: &[f64],
+        with_grad: bool,
+    ) -> anyhow::Result<Rollout> {
+        self.s.get(
+            self.p, self.theta, self.knots, method, self.seed, index, w, with_grad,
+        )
+    }
+}
+
+/// The start Θ of each seed. Without `over`, Θ_init(k). With it, the k-th point of the
+/// landscape map's Sobol design ([`crate::optim::sobol_thetas`]`(256, 0)`, in order) whose plain
+/// skill delivers at least `over` (the target's unit) more than the target: a spoon that carries
+/// more than the dose, so that the transport and the pour decide how much of it arrives. The
+/// screening rollouts (forward, the plain skill) are recorded as method `screen` and shared by
+/// every method; they count against none.
+pub fn starts(
+    store: &Store,
+    problem: &Problem,
+    over: Option<f64>,
+    seeds: usize,
+) -> anyhow::Result<Vec<[f64; 5]>> {
+    let Some(over) = over else {
+        return Ok((0..seeds).map(theta_init).collect());
+    };
+    let points = crate::optim::sobol_thetas(SCREEN_POINTS, 0);
+    let mut found = Vec::new();
+    for (i, chunk) in points
+        .chunks(rayon::current_num_threads().max(1))
+        .enumerate()
+    {
+        let first = i * rayon::current_num_threads().max(1);
+        let rs: Vec<Rollout> = chunk
+            .par_iter()
+            .enumerate()
+            .map(|(j, &t)| store.get(problem, t, 0, "screen", first + j, 0, &[0.0; 6], false))
+            .collect::<anyhow::Result<_>>()?;
+        for (r, &t) in rs.iter().zip(chunk) {
+            if -r.indicator >= over && found.len() < seeds {
+                found.push(t);
+            }
+        }
+        if found.len() == seeds {
+            return Ok(found);
+        }
+    }
+    anyhow::bail!(
+        "study refine --over {over}: only {} of the {SCREEN_POINTS} Sobol points deliver {over} more than the target, fewer than --seeds {seeds}; lower --over or --seeds",
+        found.len()
+    )
+}
+
+/// Sobol points screened for over-delivering starts.
+pub const SCREEN_POINTS: usize = 256;
+
+/// Adam on the adjoint gradient.
+fn adam(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
+    let d = 6 * c.knots;
     let n = gradient_rollouts(budget);
     let (b1, b2, eps) = (0.9, 0.999, 1e-8);
     let (mut w, mut m, mut v) = (vec![0.0; d], vec![0.0; d], vec![0.0; d]);
     let mut out = Vec::new();
     for t in 1..=n {
-        let r = s.get(p, knots, "adam", seed, t - 1, &w, true)?;
+        let r = c.get("adam", t - 1, &w, true)?;
         let g = r.grad.clone().unwrap_or_else(|| vec![0.0; d]);
         out.push(r);
         for i in 0..d {
@@ -171,17 +238,11 @@ fn adam(
 /// the trial `w − r·g/‖g‖` runs forward only and is kept if its loss falls (the radius grows),
 /// else the radius shrinks and the next trial reuses the gradient. It stops when the next
 /// rollout would pass `budget` forward rollouts' compute, or when the gradient is zero.
-fn trust(
-    s: &Store,
-    p: &Problem,
-    knots: usize,
-    seed: usize,
-    budget: usize,
-) -> anyhow::Result<Vec<Rollout>> {
+fn trust(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
     let initial = HybridConfig::default().radius;
     let mut tr = TrustRegion { radius: initial };
     let (budget, grad_cost) = (budget as f64 + 1e-9, 1.0 + BACKWARD_COST);
-    let mut w = vec![0.0; 6 * knots];
+    let mut w = vec![0.0; 6 * c.knots];
     let mut out: Vec<Rollout> = Vec::new();
     let (mut spent, mut incumbent, mut grad) = (0.0, f64::INFINITY, None::<Vec<f64>>);
     loop {
@@ -189,7 +250,7 @@ fn trust(
             if !out.is_empty() && spent + grad_cost > budget {
                 break;
             }
-            let r = s.get(p, knots, "trust", seed, out.len(), &w, true)?;
+            let r = c.get("trust", out.len(), &w, true)?;
             spent += grad_cost;
             incumbent = r.loss;
             grad = Some(r.grad.clone().unwrap_or_default());
@@ -202,7 +263,7 @@ fn trust(
         if spent + 1.0 > budget {
             break;
         }
-        let r = s.get(p, knots, "trust", seed, out.len(), &trial, false)?;
+        let r = c.get("trust", out.len(), &trial, false)?;
         spent += 1.0;
         if tr.judge(incumbent, r.loss, initial) {
             w = trial;
@@ -213,14 +274,169 @@ fn trust(
     Ok(out)
 }
 
+/// The line method's bracketing steps along the adjoint's direction, in units of `w` (the
+/// box's half-width is 1), each tried on both sides.
+pub const LINE_STEPS: [f64; 3] = [0.2, 0.4, 0.8];
+
+/// The adjoint picks the direction, forward rollouts solve for the dose along it. A gradient
+/// rollout at `w` gives `u = ∂L/∂w / ‖∂L/∂w‖`; forward trials at `w ± a·u` for `a` in
+/// [`LINE_STEPS`] look for a sign change of the signed indicator `f = target − delivered`; once
+/// one brackets `f = 0`, the Illinois variant of regula falsi spends the rest of the budget on
+/// that segment. Without a bracket, the lowest-loss trial (if lower than `w`'s) becomes the new
+/// `w` and the next gradient is taken there; if none is lower, it stops.
+///
+/// Why a line: along most directions of the residual box the dose does not change at all (a
+/// spoon that empties over the cup still empties over it), and where it changes it changes
+/// steeply (the stream leaves the cup's opening). The soft count's gradient comes from the grains
+/// near the cup's rim, so it points across that edge: it finds the one direction in which the
+/// dose moves, but neither its sign nor its step size is reliable. A bracketed root search needs
+/// neither.
+fn line(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
+    line_search(c, budget, true)
+}
+
+/// The line method with a random direction instead of the adjoint's (method `ray`), the
+/// ablation that says whether the gradient's direction matters: a forward rollout at `w`, then
+/// the same bracketing and root search along a direction of independent normal draws
+/// (normalised); without a bracket it moves to the lowest-loss trial if one is lower, and draws
+/// a new direction either way.
+fn ray(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
+    line_search(c, budget, false)
+}
+
+/// [`line`] (`adjoint`) or [`ray`].
+fn line_search(c: &Ctx, budget: usize, adjoint: bool) -> anyhow::Result<Vec<Rollout>> {
+    let method = if adjoint { "line" } else { "ray" };
+    let (budget, grad_cost) = (budget as f64 + 1e-9, 1.0 + BACKWARD_COST);
+    let d = 6 * c.knots;
+    let mut rng = SplitMix64(0x4A7_0000 + c.seed as u64 * 131 + c.knots as u64);
+    let mut w = vec![0.0; d];
+    let mut out: Vec<Rollout> = Vec::new();
+    let mut spent = 0.0;
+    // The signed indicator and the loss at w, once known (ray).
+    let mut here: Option<(f64, f64)> = None;
+    loop {
+        let (g, f0, l0) = if adjoint {
+            if !out.is_empty() && spent + grad_cost > budget {
+                return Ok(out);
+            }
+            let r = c.get(method, out.len(), &w, true)?;
+            spent += grad_cost;
+            let v = (r.grad.clone().unwrap_or_default(), r.indicator, r.loss);
+            out.push(r);
+            v
+        } else {
+            let (f0, l0) = match here {
+                Some(v) => v,
+                None => {
+                    if spent + 1.0 > budget {
+                        return Ok(out);
+                    }
+                    let r = c.get(method, out.len(), &w, false)?;
+                    spent += 1.0;
+                    let v = (r.indicator, r.loss);
+                    out.push(r);
+                    here = Some(v);
+                    v
+                }
+            };
+            ((0..d).map(|_| rng.normal()).collect::<Vec<f64>>(), f0, l0)
+        };
+        let n = g.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if !(n > 0.0 && n.is_finite()) || f0 == 0.0 {
+            return Ok(out);
+        }
+        let at = |a: f64| -> Vec<f64> {
+            w.iter()
+                .zip(&g)
+                .map(|(wi, gi)| (wi + a * gi / n).clamp(-1.0, 1.0))
+                .collect()
+        };
+        // Bracket: a step whose indicator has the other sign than at w.
+        let mut bracket = None;
+        let mut best: Option<(f64, Vec<f64>, f64)> = None;
+        'steps: for a in LINE_STEPS {
+            for a in [a, -a] {
+                if spent + 1.0 > budget {
+                    return Ok(out);
+                }
+                let x = at(a);
+                let r = c.get(method, out.len(), &x, false)?;
+                spent += 1.0;
+                let (f, l) = (r.indicator, r.loss);
+                out.push(r);
+                if l < l0 && best.as_ref().is_none_or(|b| l < b.0) {
+                    best = Some((l, x, f));
+                }
+                if f * f0 <= 0.0 {
+                    bracket = Some((a, f));
+                    break 'steps;
+                }
+            }
+        }
+        let Some((b, fb)) = bracket else {
+            match best {
+                Some((l, x, f)) => {
+                    w = x;
+                    here = Some((f, l));
+                    continue;
+                }
+                // The gradient at the same w would be the same; a random direction is redrawn.
+                None if adjoint => return Ok(out),
+                None => continue,
+            }
+        };
+        // Illinois regula falsi on [0, b] (or [b, 0]) until the budget is spent.
+        let (a, fa) = (0.0, f0);
+        let mut ends = Illinois { a, fa, b, fb };
+        while spent + 1.0 <= budget && ends.fb != 0.0 && (ends.b - ends.a).abs() > 1e-9 {
+            let x = ends.next();
+            let r = c.get(method, out.len(), &at(x), false)?;
+            spent += 1.0;
+            ends.update(x, r.indicator);
+            out.push(r);
+        }
+        return Ok(out);
+    }
+}
+
+/// A bracket `[a, b]` of a root of `f` (`f(a)·f(b) ≤ 0`) for the Illinois variant of regula
+/// falsi: `b` is always the newest point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Illinois {
+    pub a: f64,
+    pub fa: f64,
+    pub b: f64,
+    pub fb: f64,
+}
+
+impl Illinois {
+    /// The secant's root, or the midpoint where the secant leaves the bracket.
+    pub fn next(&self) -> f64 {
+        let x = (self.a * self.fb - self.b * self.fa) / (self.fb - self.fa);
+        if x.is_finite() && (x - self.a) * (x - self.b) < 0.0 {
+            x
+        } else {
+            0.5 * (self.a + self.b)
+        }
+    }
+
+    /// Takes `f(x) = fx`. The newest point replaces `b`; `a` is kept where the signs say so,
+    /// and each time it is kept its value is halved, so that a steep curve cannot pin the
+    /// secant to one end (plain regula falsi's stall).
+    pub fn update(&mut self, x: f64, fx: f64) {
+        if fx * self.fb > 0.0 {
+            self.fa *= 0.5;
+        } else {
+            (self.a, self.fa) = (self.b, self.fb);
+        }
+        (self.b, self.fb) = (x, fx);
+    }
+}
+
 /// Random search: `w = 0`, then uniform draws in the box.
-fn random(
-    s: &Store,
-    p: &Problem,
-    knots: usize,
-    seed: usize,
-    budget: usize,
-) -> anyhow::Result<Vec<Rollout>> {
+fn random(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
+    let (seed, knots) = (c.seed, c.knots);
     let mut rng = SplitMix64(0x5EED_0000 + seed as u64 * 131 + knots as u64);
     (0..budget)
         .map(|i| {
@@ -229,28 +445,22 @@ fn random(
             } else {
                 (0..6 * knots).map(|_| rng.uniform_in(-1.0, 1.0)).collect()
             };
-            s.get(p, knots, "random", seed, i, &w, false)
+            c.get("random", i, &w, false)
         })
         .collect()
 }
 
 /// CMA-ES from `w = 0`, one sample at a time (the sampler's order), `budget` rollouts.
-fn cmaes(
-    s: &Store,
-    p: &Problem,
-    knots: usize,
-    seed: usize,
-    budget: usize,
-) -> anyhow::Result<Vec<Rollout>> {
+fn cmaes(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
     let mut out: Vec<Rollout> = Vec::new();
     crate::optim::cma::run_sequential(
-        vec![0.0; 6 * knots],
+        vec![0.0; 6 * c.knots],
         CMA_SIGMA0,
-        0xC3A_0000 + seed as u64,
+        0xC3A_0000 + c.seed as u64,
         budget,
         |x| {
             let w: Vec<f64> = x.iter().map(|v| reflect(*v)).collect();
-            let r = s.get(p, knots, "cmaes", seed, out.len(), &w, false)?;
+            let r = c.get("cmaes", out.len(), &w, false)?;
             let l = r.loss;
             out.push(r);
             Ok(l)
@@ -260,10 +470,10 @@ fn cmaes(
 }
 
 /// The methods, in the page's order.
-pub const METHODS: [&str; 4] = ["adam", "trust", "cmaes", "random"];
+pub const METHODS: [&str; 6] = ["line", "adam", "trust", "ray", "cmaes", "random"];
 
 /// The methods that use the adjoint, each tested against each baseline.
-const ADJOINT: [&str; 2] = ["adam", "trust"];
+const ADJOINT: [&str; 3] = ["line", "adam", "trust"];
 
 /// One (dimension, method) cell: per seed, the dose error at equal compute.
 #[derive(Clone, Debug, Serialize)]
@@ -280,10 +490,11 @@ pub struct Cell {
 pub fn run(
     problem: &Problem,
     knots: &[usize],
-    seeds: usize,
+    starts: &[[f64; 5]],
     budget: usize,
     store: &Store,
 ) -> anyhow::Result<Vec<Cell>> {
+    let seeds = starts.len();
     let mut cells = Vec::new();
     for &k in knots {
         let per: Vec<Vec<Vec<Rollout>>> = METHODS
@@ -291,11 +502,22 @@ pub fn run(
             .map(|m| {
                 (0..seeds)
                     .into_par_iter()
-                    .map(|seed| match *m {
-                        "adam" => adam(store, problem, k, seed, budget),
-                        "trust" => trust(store, problem, k, seed, budget),
-                        "cmaes" => cmaes(store, problem, k, seed, budget),
-                        _ => random(store, problem, k, seed, budget),
+                    .map(|seed| {
+                        let c = Ctx {
+                            s: store,
+                            p: problem,
+                            knots: k,
+                            seed,
+                            theta: starts[seed],
+                        };
+                        match *m {
+                            "line" => line(&c, budget),
+                            "adam" => adam(&c, budget),
+                            "trust" => trust(&c, budget),
+                            "cmaes" => cmaes(&c, budget),
+                            "ray" => ray(&c, budget),
+                            _ => random(&c, budget),
+                        }
                     })
                     .collect::<anyhow::Result<Vec<_>>>()
             })
@@ -342,18 +564,30 @@ pub fn run(
 }
 
 /// The page.
-pub fn report(cells: &[Cell], command: &str, unit: &str, budget: usize) -> String {
+pub fn report(
+    cells: &[Cell],
+    command: &str,
+    unit: &str,
+    budget: usize,
+    over: Option<f64>,
+) -> String {
     use std::fmt::Write;
     let mut s = String::from(
         "# Trajectory refinement: the adjoint against CMA-ES and random search by dimension\n\n",
     );
     let _ = writeln!(s, "Regenerate: `{command}`  ");
     let _ = writeln!(s, "Machine: {}.\n", super::optimizers::machine());
+    let start = match over {
+        None => "Θ_init(k)".to_string(),
+        Some(g) => format!(
+            "the k-th point of the landscape map's Sobol design whose plain skill delivers at least {g} {unit} more than the target (a spoon that carries more than the dose, so that the transport and the pour decide how much arrives; the screening rollouts count against no method)"
+        ),
+    };
     let _ = writeln!(
         s,
-        "Seed k refines the skill of Θ_init(k) with residuals on its transport and pour (6 channels × knots parameters, `optim::refine`); every method starts from the plain skill and gets the compute of {budget} forward rollouts (a backward pass at {BACKWARD_COST}×). adam: Adam (lr {ADAM_LR}) on the adjoint gradient; trust: the adjoint's direction in a trust region that keeps a step only if the loss falls (the hybrid's local phase); cmaes: CMA-ES (σ₀ {CMA_SIGMA0}); random: uniform draws in the box. Score: dose error ({unit}) of the lowest-loss rollout within each seed's equal-compute budget. p: one-sided exact Wilcoxon signed-rank over the paired seeds that the adjoint method's dose error is smaller than the baseline's (ties dropped). SAC is not run (its policy is written for five parameters).\n"
+        "Seed k refines the skill of {start} with residuals on its transport and pour (6 channels × knots parameters, `optim::refine`); every method starts from the plain skill and gets the compute of {budget} forward rollouts (a backward pass at {BACKWARD_COST}×). line: the adjoint's direction, then a bracketed root search of the dose along it with forward rollouts (steps {LINE_STEPS:?} each way, then Illinois regula falsi); ray: the same search along random directions, forward rollouts only (the ablation: does the adjoint's direction matter?); adam: Adam (lr {ADAM_LR}) on the adjoint gradient; trust: the adjoint's direction in a trust region that keeps a step only if the loss falls (the hybrid's local phase); cmaes: CMA-ES (σ₀ {CMA_SIGMA0}); random: uniform draws in the box. Score: dose error ({unit}) of the lowest-loss rollout within each seed's equal-compute budget. p: one-sided exact Wilcoxon signed-rank over the paired seeds that the adjoint method's dose error is smaller than the baseline's (ties dropped). SAC is not run (its policy is written for five parameters).\n"
     );
-    s.push_str("| parameters | method | dose error mean ± std | median | p < cmaes | p < random | rollouts | G particle-substeps |\n|---|---|---|---|---|---|---|---|\n");
+    s.push_str("| parameters | method | dose error mean ± std | median | p < cmaes | p < random | p < ray | rollouts | G particle-substeps |\n|---|---|---|---|---|---|---|---|---|\n");
     for c in cells {
         let (m, sd) = mean_std(&c.dose);
         let p = |base: &str| {
@@ -369,15 +603,73 @@ pub fn report(cells: &[Cell], command: &str, unit: &str, budget: usize) -> Strin
         };
         let _ = writeln!(
             s,
-            "| {} | {} | {m:.3} ± {sd:.3} | {:.3} | {} | {} | {:.1} | {:.2} |",
+            "| {} | {} | {m:.3} ± {sd:.3} | {:.3} | {} | {} | {} | {:.1} | {:.2} |",
             6 * c.knots,
             c.method,
             median(&c.dose),
             p("cmaes"),
             p("random"),
+            p("ray"),
             c.rollouts,
             c.cost / 1e9
         );
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Illinois;
+
+    /// Solves `f = 0` from the bracket `[0, b]` in `n` evaluations; the last `f`.
+    fn solve(f: impl Fn(f64) -> f64, b: f64, n: usize) -> f64 {
+        let mut e = Illinois {
+            a: 0.0,
+            fa: f(0.0),
+            b,
+            fb: f(b),
+        };
+        for _ in 0..n {
+            let x = e.next();
+            e.update(x, f(x));
+        }
+        e.fb
+    }
+
+    /// A dose cliff: 4.5 g over the cup at 0, nothing past 0.4, a steep ramp at 0.27, and the
+    /// target 2 g; the signed indicator is target − delivered. One grain weighs 0.023 g.
+    fn cliff(x: f64) -> f64 {
+        2.0 - 4.5 / (1.0 + ((x - 0.27) / 0.01).exp())
+    }
+
+    #[test]
+    fn illinois_finds_the_dose_on_a_steep_cliff() {
+        let f = solve(cliff, 0.4, 12);
+        assert!(f.abs() < 0.012, "half a grain: {f}");
+        // The same from the other side of the bracket.
+        assert!(solve(|x| cliff(0.4 - x), 0.4, 12).abs() < 0.012);
+    }
+
+    #[test]
+    fn illinois_stays_in_the_bracket_on_a_staircase() {
+        // Whole grains: the dose moves in steps of 0.023 g, so only a point within one step of
+        // the target exists; the bracket must still close on it.
+        let step = |x: f64| {
+            let delivered = 4.5 / (1.0 + ((x - 0.27) / 0.01).exp());
+            2.0 - (delivered / 0.023).floor() * 0.023
+        };
+        let mut e = Illinois {
+            a: 0.0,
+            fa: step(0.0),
+            b: 0.4,
+            fb: step(0.4),
+        };
+        for _ in 0..30 {
+            let x = e.next();
+            assert!((0.0..=0.4).contains(&x), "{x} left the bracket");
+            e.update(x, step(x));
+            assert!(e.fa * e.fb <= 0.0, "lost the bracket: {e:?}");
+        }
+        assert!(e.fb.abs() <= 0.023, "{e:?}");
+    }
 }
