@@ -467,7 +467,7 @@ fn refine_cmd(a: Args) -> Result<()> {
     if a.over.is_some_and(|g| !(g.is_finite() && g >= 0.0)) {
         bail!("study refine: --over must be a finite amount of at least 0 (the target's unit)");
     }
-    let starts = refine::starts(&store, &problem, a.over, a.seeds)?;
+    let (starts, screen) = refine::starts(&store, &problem, a.over, a.seeds)?;
     let cells = refine::run(&problem, &a.knots, &starts, a.budget, &store)?;
     pb.finish_and_clear();
     let over = a.over.map_or(String::new(), |g| format!(" --over {g}"));
@@ -482,10 +482,16 @@ fn refine_cmd(a: Args) -> Result<()> {
         a.seeds,
         a.budget
     );
-    let md = refine::report(&cells, &command, unit, a.budget, a.over);
+    let md = refine::report(&cells, &command, unit, a.budget, screen);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("refinement.md"), md.as_bytes())?;
-    print_page(&a, &md, start, "refinement.md", json!({ "cells": cells }));
+    print_page(
+        &a,
+        &md,
+        start,
+        "refinement.md",
+        json!({ "cells": cells, "screen": screen }),
+    );
     Ok(())
 }
 

@@ -177,12 +177,17 @@ pub fn starts(
     problem: &Problem,
     over: Option<f64>,
     seeds: usize,
-) -> anyhow::Result<Vec<[f64; 5]>> {
+) -> anyhow::Result<(Vec<[f64; 5]>, Option<Screen>)> {
     let Some(over) = over else {
-        return Ok((0..seeds).map(theta_init).collect());
+        return Ok(((0..seeds).map(theta_init).collect(), None));
     };
     let points = crate::optim::sobol_thetas(SCREEN_POINTS, 0);
     let mut found = Vec::new();
+    let mut screen = Screen {
+        over,
+        screened: 0,
+        reach: 0,
+    };
     for (i, chunk) in points
         .chunks(rayon::current_num_threads().max(1))
         .enumerate()
@@ -194,18 +199,35 @@ pub fn starts(
             .map(|(j, &t)| store.get(problem, t, 0, "screen", first + j, 0, &[0.0; 6], false))
             .collect::<anyhow::Result<_>>()?;
         for (r, &t) in rs.iter().zip(chunk) {
-            if -r.indicator >= over && found.len() < seeds {
+            if found.len() == seeds {
+                break;
+            }
+            screen.screened += 1;
+            screen.reach += usize::from(r.indicator <= 0.0);
+            if -r.indicator >= over {
                 found.push(t);
             }
         }
         if found.len() == seeds {
-            return Ok(found);
+            return Ok((found, Some(screen)));
         }
     }
     anyhow::bail!(
         "study refine --over {over}: only {} of the {SCREEN_POINTS} Sobol points deliver {over} more than the target, fewer than --seeds {seeds}; lower --over or --seeds",
         found.len()
     )
+}
+
+/// What the screening for over-delivering starts saw, up to the last start it kept.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Screen {
+    /// The margin asked for (the target's unit).
+    pub over: f64,
+    /// Sobol points run.
+    pub screened: usize,
+    /// Of them, those whose plain skill delivers at least the target: the only ones whose dose
+    /// a residual on the transport and pour can reach, since it cannot add to the spoon's load.
+    pub reach: usize,
 }
 
 /// Sobol points screened for over-delivering starts.
@@ -569,7 +591,7 @@ pub fn report(
     command: &str,
     unit: &str,
     budget: usize,
-    over: Option<f64>,
+    screen: Option<Screen>,
 ) -> String {
     use std::fmt::Write;
     let mut s = String::from(
@@ -577,10 +599,11 @@ pub fn report(
     );
     let _ = writeln!(s, "Regenerate: `{command}`  ");
     let _ = writeln!(s, "Machine: {}.\n", super::optimizers::machine());
-    let start = match over {
+    let start = match screen {
         None => "Θ_init(k)".to_string(),
-        Some(g) => format!(
-            "the k-th point of the landscape map's Sobol design whose plain skill delivers at least {g} {unit} more than the target (a spoon that carries more than the dose, so that the transport and the pour decide how much arrives; the screening rollouts count against no method)"
+        Some(sc) => format!(
+            "the k-th point of the landscape map's Sobol design whose plain skill delivers at least {} {unit} more than the target: a spoon that carries more than the dose, so that the transport and the pour decide how much arrives. A residual on the transport and the pour cannot add to the spoon's load, so a start that delivers less than the target cannot reach it at all; of the {} points screened, {} deliver at least the target and {} at least {} {unit} more (the screening rollouts count against no method)",
+            sc.over, sc.screened, sc.reach, cells.first().map_or(0, |c| c.dose.len()), sc.over
         ),
     };
     let _ = writeln!(
