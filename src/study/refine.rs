@@ -5,8 +5,8 @@
 //! Seed `k` refines the skill of its start Θ ([`starts`]: Θ_init(k), or an over-delivering
 //! Sobol point) with a residual of `knots` knots per control channel on its transport and pour
 //! ([`crate::optim::refine`]); every method starts from `w = 0` (the plain skill). Methods:
-//! - **line**: the adjoint's axis, then a bracketed root search of the dose along it ([`line`]);
-//! - **ray**: the same search along random axes, forward only ([`ray`], the ablation);
+//! - **line**: the adjoint's axis, then a bracketed root search of the dose along it (`line`);
+//! - **ray**: the same search along random axes, forward only (`ray`, the ablation);
 //! - **adam**: Adam (β₁ 0.9, β₂ 0.999, lr [`ADAM_LR`]) on the adjoint `∂L/∂w`, projected to the
 //!   box, `⌈budget/(1 + BACKWARD_COST)⌉` gradient rollouts;
 //! - **trust**: the adjoint's direction in the hybrid's trust region (a step is kept only if the
