@@ -120,6 +120,7 @@ impl Store {
                 return Ok(r.clone());
             }
         }
+        // Knots 0 is the screening's plain skill: one knot with zero weights adds nothing.
         let res = problem.residual(theta, knots.max(1));
         let (o, grad) = problem.evaluate_residual(theta, &res, w, with_grad, true)?;
         let forward = o.particles as f64 * o.steps as f64 * o.substeps as f64;
@@ -191,11 +192,9 @@ pub fn starts(
         screened: 0,
         reach: 0,
     };
-    for (i, chunk) in points
-        .chunks(rayon::current_num_threads().max(1))
-        .enumerate()
-    {
-        let first = i * rayon::current_num_threads().max(1);
+    let batch = rayon::current_num_threads().max(1);
+    for (i, chunk) in points.chunks(batch).enumerate() {
+        let first = i * batch;
         let rs: Vec<Rollout> = chunk
             .par_iter()
             .enumerate()
@@ -412,8 +411,12 @@ fn line_search(c: &Ctx, budget: usize, adjoint: bool) -> anyhow::Result<Vec<Roll
             }
         };
         // Illinois regula falsi on [0, b] (or [b, 0]) until the budget is spent.
-        let (a, fa) = (0.0, f0);
-        let mut ends = Illinois { a, fa, b, fb };
+        let mut ends = Illinois {
+            a: 0.0,
+            fa: f0,
+            b,
+            fb,
+        };
         while spent + 1.0 <= budget && ends.fb != 0.0 && (ends.b - ends.a).abs() > 1e-9 {
             let x = ends.next();
             let r = c.get(method, out.len(), &at(x), false)?;
