@@ -28,7 +28,7 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
                 "--budget",
                 "7",
                 "--method",
-                "hybrid,grad,carry,random",
+                "hybrid,grad,carry,random,line,ray",
                 "--json",
                 "--out",
             ])
@@ -43,7 +43,7 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
     let page = std::fs::read_to_string(dir.join("results/optimisation.md")).unwrap();
     assert!(page.starts_with("# Optimisation benchmark"));
     assert!(page.contains("Regenerate: `powderlab study optimizers --tasks"));
-    for m in ["hybrid", "grad", "carry", "random"] {
+    for m in ["hybrid", "grad", "carry", "random", "line", "ray"] {
         assert!(page.contains(&format!("\n| {m} |")), "{m} missing:\n{page}");
     }
     assert!(
@@ -54,7 +54,10 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
     );
     let csv = std::fs::read_to_string(dir.join("results/optimisation.csv")).unwrap();
     // One row per method and seed.
-    assert_eq!(csv.lines().count(), 1 + 4 * 2, "{csv}");
+    assert_eq!(csv.lines().count(), 1 + 6 * 2, "{csv}");
+    // line is tested against its ablation ray.
+    assert!(page.contains("| p < ray |"), "{page}");
+    assert!(page.contains("line against its ablation ray (random axes): p = "));
 
     // The hybrid's run: half the budget (3 forward rollouts, Θ_init first) on Sobol points,
     // then a gradient rollout at the best of them; its compute never passes 7 forward
@@ -114,6 +117,39 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
         assert_eq!(g["loss"], c["loss"]);
         assert_ne!(g["grad"], c["grad"]);
     }
+    // line and ray: the hybrid's global phase (the same three points and rollouts), then
+    // line's gradient rollout at its lowest-loss point, ray's forward rollouts only, all within
+    // 7 forward rollouts of compute.
+    let rollouts = |m: &str, seed: u64| -> Vec<serde_json::Value> {
+        let mut v: Vec<serde_json::Value> = journal
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .filter(|r| r["method"] == m && r["seed"] == seed)
+            .collect();
+        v.sort_by_key(|r| r["batch"].as_u64());
+        v
+    };
+    for seed in 0..2 {
+        let (hybrid, line, ray) = (
+            rollouts("hybrid", seed),
+            rollouts("line", seed),
+            rollouts("ray", seed),
+        );
+        for i in 0..3 {
+            assert_eq!(line[i]["theta"], hybrid[i]["theta"]);
+            assert_eq!(line[i]["loss"], hybrid[i]["loss"]);
+            assert_eq!(ray[i]["loss"], hybrid[i]["loss"]);
+        }
+        // 3 + 3.4: no forward rollout fits after the gradient's.
+        assert_eq!(line.len(), 4, "{line:?}");
+        assert_eq!(
+            line[3]["theta"], hybrid[3]["theta"],
+            "at the global phase's best"
+        );
+        assert!(!line[3]["grad"].is_null());
+        assert!(ray.iter().all(|r| r["grad"].is_null()));
+        assert_eq!(ray.len(), 7);
+    }
     // A second run replays every rollout from the journals and writes the same table.
     let o2 = run();
     assert!(
@@ -123,5 +159,39 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
     );
     let csv2 = std::fs::read_to_string(dir.join("results/optimisation.csv")).unwrap();
     assert_eq!(csv, csv2);
+
+    // Resuming with fewer methods replays them and runs nothing new; --page names the files.
+    let journal_path = dir.join("optimizers/tiny_transport/journal.jsonl");
+    let before = std::fs::read_to_string(&journal_path).unwrap();
+    let o3 = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(["study", "optimizers", "--tasks", SCENE, "--seeds", "2"])
+        .args([
+            "--budget",
+            "7",
+            "--method",
+            "line,random",
+            "--page",
+            "subset",
+        ])
+        .args(["--json", "--out"])
+        .arg(&dir)
+        .arg("--results")
+        .arg(dir.join("results"))
+        .output()
+        .unwrap();
+    assert!(
+        o3.status.success(),
+        "{}",
+        String::from_utf8_lossy(&o3.stderr)
+    );
+    assert_eq!(std::fs::read_to_string(&journal_path).unwrap(), before);
+    let subset = std::fs::read_to_string(dir.join("results/subset.md")).unwrap();
+    assert!(
+        subset.contains("--method line,random --page subset`"),
+        "{subset}"
+    );
+    assert!(subset.contains("](subset.svg)") && subset.contains("\n| line |"));
+    assert!(!subset.contains("\n| hybrid |"));
+    assert!(dir.join("results/subset.csv").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }

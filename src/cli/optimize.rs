@@ -10,7 +10,7 @@ use std::path::PathBuf;
 pub struct Args {
     /// The scene whose tool has a skill control.
     scene: PathBuf,
-    /// grad, cmaes, sac, random, smoothed, hybrid, carry, paper (the first four, 30 rollouts
+    /// grad, cmaes, sac, random, smoothed, hybrid, carry, line, ray, paper (the first four, 30 rollouts
     /// each), default (sac, hybrid, cmaes, random at equal compute: the benchmark's verdict, see
     /// docs/results/optimisation.md) or all (comma separated). Default: default.
     #[arg(long, value_delimiter = ',')]
@@ -162,7 +162,7 @@ pub fn run(args: Args) -> Result<()> {
                 }
             }
             None => {
-                bail!("--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, paper, default or all")
+                bail!("--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, line, ray, paper, default or all")
             }
         }
     }

@@ -54,6 +54,9 @@ pub struct Args {
     /// optimizers, refine, directions: where the page goes.
     #[arg(long, default_value = "docs/results")]
     results: PathBuf,
+    /// optimizers: the page's name: NAME.md, NAME.svg and NAME.csv in --results.
+    #[arg(long, default_value = "optimisation")]
+    page: String,
     /// reliability: mutated scenes to run through `simulate`.
     #[arg(long, default_value_t = 10_000)]
     cases: usize,
@@ -358,7 +361,7 @@ fn optimizers_cmd(a: Args) -> Result<()> {
     for m in &a.method {
         let Some(ms) = Method::parse_list(m) else {
             bail!(
-                "--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, paper, default or all"
+                "--method {m}: expected grad, cmaes, sac, random, smoothed, hybrid, carry, line, ray, paper, default or all"
             );
         };
         for m in ms {
@@ -372,7 +375,13 @@ fn optimizers_cmd(a: Args) -> Result<()> {
         .num_threads(threads)
         .build_global()
         .context("starting the worker threads")?;
-    let command = format!(
+    if a.page.is_empty() || a.page.contains(['/', '\\', '.']) {
+        bail!(
+            "--page {:?}: expected a file name without a folder or extension, such as optimisation",
+            a.page
+        );
+    }
+    let mut command = format!(
         "powderlab study optimizers --tasks {} --seeds {} --budget {} --method {}",
         tasks
             .iter()
@@ -387,6 +396,9 @@ fn optimizers_cmd(a: Args) -> Result<()> {
             .collect::<Vec<_>>()
             .join(",")
     );
+    if a.page != "optimisation" {
+        command.push_str(&format!(" --page {}", a.page));
+    }
     for t in &tasks {
         super::announce_work(t, (a.seeds * a.budget * methods.len()) as f64)?;
     }
@@ -398,6 +410,7 @@ fn optimizers_cmd(a: Args) -> Result<()> {
         methods,
         out: a.out.join("optimizers"),
         results: a.results.clone(),
+        page: a.page.clone(),
         command,
         quiet: a.json,
     })?;
@@ -405,7 +418,7 @@ fn optimizers_cmd(a: Args) -> Result<()> {
         &a,
         &md,
         start,
-        "optimisation.md, optimisation.svg and optimisation.csv",
+        &format!("{p}.md, {p}.svg and {p}.csv", p = a.page),
         json!({}),
     );
     Ok(())

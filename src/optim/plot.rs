@@ -19,6 +19,8 @@ pub fn colour(m: Method) -> RGBColor {
         Method::Smoothed => RGBColor(148, 103, 189),
         Method::Hybrid => RGBColor(140, 86, 75),
         Method::Carry => RGBColor(23, 190, 207),
+        Method::Line => RGBColor(255, 127, 14),
+        Method::Ray => RGBColor(188, 189, 34),
     }
 }
 

@@ -339,44 +339,97 @@ impl Runner<'_> {
         Ok(())
     }
 
+    /// The forward-only global phase of the hybrid, `line` and `ray`: Θ_init, then the hybrid's
+    /// Owen-scrambled Sobol points (the same for the three methods, so they differ only in
+    /// what follows), the first `global` of them run as `method`. Returns how many ran, every
+    /// seed's points (the unused ones are the hybrid's spares) and the rollouts.
+    fn global_phase(&self, s: &Settings, method: Method) -> anyhow::Result<GlobalPhase> {
+        let global = ((s.hybrid.global * s.epochs as f64).floor() as usize).clamp(1, s.epochs);
+        let points: Vec<Vec<[f64; 5]>> = (0..s.seeds)
+            .map(|k| {
+                let mut v = vec![s.start(k)];
+                v.extend(sobol_thetas(
+                    s.epochs - 1,
+                    method_seed(Method::Hybrid, k) as u32,
+                ));
+                v
+            })
+            .collect();
+        let jobs: Vec<(usize, usize, [f64; 5])> = points
+            .iter()
+            .enumerate()
+            .flat_map(|(k, p)| {
+                p.iter()
+                    .take(global)
+                    .enumerate()
+                    .map(move |(i, t)| (k, i, *t))
+            })
+            .collect();
+        let found = jobs
+            .par_iter()
+            .map(|&(k, i, t)| self.rollout(method, k, i, t, Pass::Forward))
+            .collect::<anyhow::Result<_>>()?;
+        Ok(GlobalPhase {
+            ran: global,
+            points,
+            found,
+        })
+    }
+
+    /// `line` or `ray` ([`super::line`]): the hybrid's global phase, then the root search from
+    /// its lowest-loss point, with restarts, within the compute of `epochs` forward rollouts.
+    /// A rollout's batch is its place in the seed's sequence.
+    pub(super) fn line(&self, s: &Settings, method: Method) -> anyhow::Result<()> {
+        let GlobalPhase {
+            ran: global, found, ..
+        } = self.global_phase(s, method)?;
+        let budget = super::line::Budget {
+            forward_rollouts: (s.epochs - global) as f64,
+            gradient_cost: 1.0 + report::BACKWARD_COST,
+            restart: true,
+        };
+        (0..s.seeds).into_par_iter().try_for_each(|k| {
+            let start = lowest(&found, k).context("the global phase ran nothing")?;
+            let mut rng = SplitMix64(method_seed(method, k));
+            let mut batch = global;
+            super::line::search(
+                &start.theta,
+                Some((start.outcome.indicator, start.outcome.loss)),
+                budget,
+                method == Method::Line,
+                &mut rng,
+                &mut |w, with_grad| {
+                    let theta: [f64; 5] = std::array::from_fn(|i| w[i]);
+                    let pass = if with_grad {
+                        Pass::Gradient
+                    } else {
+                        Pass::Forward
+                    };
+                    let r = self.rollout(method, k, batch, theta, pass)?;
+                    batch += 1;
+                    Ok(super::line::Probe {
+                        indicator: r.outcome.indicator,
+                        loss: r.outcome.loss,
+                        grad: r.outcome.grad.map(|g| g.to_vec()),
+                    })
+                },
+            )
+        })
+    }
+
     /// The hybrid ([`super::hybrid`]): Sobol points, then a trust region along the adjoint
     /// gradient from the best of them, within the compute of `epochs` forward rollouts.
     pub(super) fn hybrid(&self, s: &Settings) -> anyhow::Result<()> {
         let budget = s.epochs as f64;
-        let global = ((s.hybrid.global * budget).floor() as usize).clamp(1, s.epochs);
-        let points = |k: usize| -> Vec<[f64; 5]> {
-            let mut v = vec![s.start(k)];
-            v.extend(sobol_thetas(
-                s.epochs - 1,
-                method_seed(Method::Hybrid, k) as u32,
-            ));
-            v
-        };
-        let jobs: Vec<(usize, usize, [f64; 5])> = (0..s.seeds)
-            .flat_map(|k| {
-                points(k)
-                    .into_iter()
-                    .take(global)
-                    .enumerate()
-                    .map(move |(i, t)| (k, i, t))
-            })
-            .collect();
-        let found: Vec<Record> = jobs
-            .par_iter()
-            .map(|&(k, i, t)| self.rollout(Method::Hybrid, k, i, t, Pass::Forward))
-            .collect::<anyhow::Result<_>>()?;
+        let GlobalPhase {
+            ran: global,
+            points,
+            found,
+        } = self.global_phase(s, Method::Hybrid)?;
         let grad_cost = 1.0 + report::BACKWARD_COST;
         (0..s.seeds).into_par_iter().try_for_each(|k| {
-            // The global phase's best (the first of equal losses, in draw order).
-            let mut inc = found
-                .iter()
-                .filter(|r| r.seed == k)
-                .fold(None::<&Record>, |b, r| match b {
-                    Some(b) if b.outcome.loss <= r.outcome.loss => Some(b),
-                    _ => Some(r),
-                })
-                .map(|r| (r.theta, r.outcome.loss))
-                .context("the hybrid's global phase ran nothing")?;
+            let inc = lowest(&found, k).context("the hybrid's global phase ran nothing")?;
+            let mut inc = (inc.theta, inc.outcome.loss);
             let mut spent = global as f64;
             let mut batch = global;
             let mut tr = TrustRegion {
@@ -385,7 +438,7 @@ impl Runner<'_> {
             let mut grad: Option<[f64; 5]> = None;
             // Sobol points not used by the global phase: where the gradient gives no direction
             // (all zero), the rest of the budget continues the search instead of idling.
-            let mut spare = points(k).into_iter().skip(global);
+            let mut spare = points[k].iter().copied().skip(global);
             loop {
                 let trial = match grad {
                     None => {
@@ -430,4 +483,24 @@ impl Runner<'_> {
             Ok(())
         })
     }
+}
+
+/// What a forward-only global phase ran.
+struct GlobalPhase {
+    /// Points run per seed.
+    ran: usize,
+    /// Every seed's points, the unused ones included.
+    points: Vec<Vec<[f64; 5]>>,
+    found: Vec<Record>,
+}
+
+/// Seed `k`'s lowest-loss rollout of `found` (the first of equal losses, in order).
+fn lowest(found: &[Record], k: usize) -> Option<&Record> {
+    found
+        .iter()
+        .filter(|r| r.seed == k)
+        .fold(None::<&Record>, |b, r| match b {
+            Some(b) if b.outcome.loss <= r.outcome.loss => Some(b),
+            _ => Some(r),
+        })
 }

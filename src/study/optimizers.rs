@@ -126,7 +126,7 @@ impl TaskResult {
     pub fn winners(&self) -> Vec<Method> {
         self.rows
             .iter()
-            .filter(|r| !BASELINES.contains(&r.method))
+            .filter(|r| r.method.uses_adjoint())
             .filter(|r| {
                 self.rows
                     .iter()
@@ -218,6 +218,17 @@ pub fn analyse(
             }
         }
     }
+    // line against its ablation: the same search along random axes.
+    let ray = rows
+        .iter()
+        .find(|r| r.method == Method::Ray)
+        .map(|r| r.dose_equal_compute.clone());
+    if let (Some(ray), Some(line)) = (ray, rows.iter_mut().find(|r| r.method == Method::Line)) {
+        if ray.len() == line.dose_equal_compute.len() {
+            let p = wilcoxon_less(&line.dose_equal_compute, &ray);
+            line.p_vs.insert(Method::Ray.name().to_string(), p);
+        }
+    }
     TaskResult {
         scene: scene.to_string(),
         unit: unit.to_string(),
@@ -284,11 +295,11 @@ pub fn table(t: &TaskResult) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| method | dose error at equal compute ({u}), mean ± std | median | p < random | p < cmaes | p < sac | rollouts in budget | G particle-substeps | rollout s per seed | dose error at {k} rollouts, mean ± std | method wall s |",
+        "| method | dose error at equal compute ({u}), mean ± std | median | p < random | p < cmaes | p < sac | p < ray | rollouts in budget | G particle-substeps | rollout s per seed | dose error at {k} rollouts, mean ± std | method wall s |",
         u = t.unit,
         k = t.equal_rollouts
     );
-    s.push_str("|---|---|---|---|---|---|---|---|---|---|---|\n");
+    s.push_str("|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for r in t.ranked() {
         let (m, sd) = mean_std(&r.dose_equal_compute);
         let (mr, sr) = mean_std(&r.dose_equal_rollouts);
@@ -299,12 +310,13 @@ pub fn table(t: &TaskResult) -> String {
         };
         let _ = writeln!(
             s,
-            "| {} | {m:.3} ± {sd:.3} | {:.3} | {} | {} | {} | {:.1} | {:.2} | {:.0} | {mr:.3} ± {sr:.3} | {:.0} |",
+            "| {} | {m:.3} ± {sd:.3} | {:.3} | {} | {} | {} | {} | {:.1} | {:.2} | {:.0} | {mr:.3} ± {sr:.3} | {:.0} |",
             r.method.name(),
             median(&r.dose_equal_compute),
             p("random"),
             p("cmaes"),
             p("sac"),
+            p("ray"),
             r.rollouts_in_budget,
             r.particle_substeps / 1e9,
             r.rollout_s,
@@ -325,8 +337,10 @@ pub struct StudyOptions {
     pub methods: Vec<Method>,
     /// Run directories (journals), one per task.
     pub out: std::path::PathBuf,
-    /// Where `optimisation.md`, `.svg` and `.csv` go.
+    /// Where the page (`.md`), its figure (`.svg`) and its table (`.csv`) go.
     pub results: std::path::PathBuf,
+    /// The page's file stem (`optimisation`).
+    pub page: String,
     /// The command line that regenerates the page, written at its top.
     pub command: String,
     pub quiet: bool,
@@ -439,10 +453,11 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
         results.push(t);
     }
     crate::util::create_output_dir(&o.results, "--results")?;
-    super::plot::optimisation_figure(&o.results.join("optimisation.svg"), &curves)?;
-    crate::util::write_atomic(&o.results.join("optimisation.csv"), csv.as_bytes())?;
+    let file = |ext: &str| o.results.join(format!("{}.{ext}", o.page));
+    super::plot::optimisation_figure(&file("svg"), &curves)?;
+    crate::util::write_atomic(&file("csv"), csv.as_bytes())?;
     let md = page(o, &results);
-    crate::util::write_atomic(&o.results.join("optimisation.md"), md.as_bytes())?;
+    crate::util::write_atomic(&file("md"), md.as_bytes())?;
     Ok(md)
 }
 
@@ -461,14 +476,16 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
     let _ = writeln!(s, "Machine: {}.\n", machine());
     let _ = writeln!(
         s,
-        "Each task is one skill scene. Every method starts seed k from the same Θ_init and gets the compute of {b} forward rollouts per seed: random search, CMA-ES and SAC run {b} forward rollouts; grad, carry and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up; the hybrid spends half its budget on Sobol points and the rest on trust-region steps along the adjoint gradient; carry is grad whose first half descends the spoon's soft carried mass against the target (at the end of the lift and of the transport) instead of the scene's loss. The curriculum of grad, carry and smoothed frees θ_t and θ_p after half of each method's rollouts. \
+        "Each task is one skill scene. Every method starts seed k from the same Θ_init and gets the compute of {b} forward rollouts per seed: random search, CMA-ES and SAC run {b} forward rollouts; grad, carry and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up; the hybrid spends half its budget on Sobol points and the rest on trust-region steps along the adjoint gradient; carry is grad whose first half descends the spoon's soft carried mass against the target (at the end of the lift and of the transport) instead of the scene's loss. The curriculum of grad, carry and smoothed frees θ_t and θ_p after half of each method's rollouts. line takes one gradient rollout for an axis, tries forward rollouts at ±{steps:?} along it for a sign change of target − delivered, and closes on it by Illinois regula falsi; it starts again from its lowest-loss point (a new gradient there) until its budget is spent. ray is line with random axes and forward rollouts only: the ablation that says whether the adjoint's axis matters (its p is line's column p < ray). \
 A method's score after some compute is the dose error |target − delivered| of its rollout of lowest loss so far. **Equal compute** reads every method at each seed's smallest spend of simulated particle-substeps over the methods; **equal rollouts** reads every method after the fewest rollouts any method ran. p is the one-sided exact Wilcoxon signed-rank p-value, over the paired seeds, that the method's dose error at equal compute is smaller than the baseline's (ties dropped); a verdict needs p < {ALPHA}. Run time per seed is one core's share (two rollouts run side by side).\n",
         b = o.budget,
         c = crate::optim::report::BACKWARD_COST,
+        steps = crate::optim::line::LINE_STEPS,
     );
     let _ = writeln!(
         s,
-        "![median best dose error against compute and rollouts](optimisation.svg)\n"
+        "![median best dose error against compute and rollouts]({}.svg)\n",
+        o.page
     );
     for t in results {
         let best_base = t
@@ -501,6 +518,23 @@ A method's score after some compute is the dose error |target − delivered| of 
                 )
             }
         );
+        if let Some(p) = t
+            .rows
+            .iter()
+            .find(|r| r.method == Method::Line)
+            .and_then(|r| r.p_vs.get(Method::Ray.name()))
+        {
+            let _ = writeln!(
+                s,
+                "line against its ablation ray (random axes): p = {}: {}\n",
+                p_text(*p),
+                if p.is_some_and(|p| p < ALPHA) {
+                    "the adjoint's axis matters."
+                } else {
+                    "the adjoint's axis is not shown to matter."
+                }
+            );
+        }
         s.push_str(&table(t));
         s.push('\n');
     }

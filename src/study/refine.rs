@@ -23,6 +23,7 @@
 use super::optimizers::wilcoxon_less;
 use crate::optim::cma::reflect;
 use crate::optim::hybrid::{HybridConfig, TrustRegion};
+pub use crate::optim::line::{self, Illinois, LINE_STEPS};
 use crate::optim::problem::Problem;
 pub use crate::optim::report::gradient_rollouts;
 use crate::optim::report::{mean_std, BACKWARD_COST};
@@ -298,23 +299,11 @@ fn trust(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
     Ok(out)
 }
 
-/// The line method's bracketing steps along the adjoint's direction, in units of `w` (the
-/// box's half-width is 1), each tried on both sides.
-pub const LINE_STEPS: [f64; 3] = [0.2, 0.4, 0.8];
-
-/// The adjoint picks the direction, forward rollouts solve for the dose along it. A gradient
-/// rollout at `w` gives `u = ∂L/∂w / ‖∂L/∂w‖`; forward trials at `w ± a·u` for `a` in
-/// [`LINE_STEPS`] look for a sign change of the signed indicator `f = target − delivered`; once
-/// one brackets `f = 0`, the Illinois variant of regula falsi spends the rest of the budget on
-/// that segment. Without a bracket, the lowest-loss trial (if lower than `w`'s) becomes the new
-/// `w` and the next gradient is taken there; if none is lower, it stops.
-///
-/// Why a line: along most directions of the residual box the dose does not change at all (a
-/// spoon that empties over the cup still empties over it), and where it changes it changes
-/// steeply (the stream leaves the cup's opening). The soft count's gradient comes from the grains
-/// near the cup's rim, so it points across that edge: it finds the one direction in which the
-/// dose moves, but neither its sign nor its step size is reliable. A bracketed root search needs
-/// neither.
+/// The adjoint picks the direction, forward rollouts solve for the dose along it
+/// ([`crate::optim::line`]): a gradient rollout at `w`, forward trials at `w ± a·u` for `a` in
+/// [`LINE_STEPS`], then Illinois regula falsi on the bracket until the budget is spent. Without a
+/// bracket, the lowest-loss trial (if lower than `w`'s) becomes the new `w`; if none is lower, it
+/// stops.
 fn line(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
     line_search(c, budget, true)
 }
@@ -328,138 +317,33 @@ fn ray(c: &Ctx, budget: usize) -> anyhow::Result<Vec<Rollout>> {
     line_search(c, budget, false)
 }
 
-/// [`line`] (`adjoint`) or [`ray`].
+/// [`line`] (`adjoint`) or [`ray`], without restarts (the published figures').
 fn line_search(c: &Ctx, budget: usize, adjoint: bool) -> anyhow::Result<Vec<Rollout>> {
     let method = if adjoint { "line" } else { "ray" };
-    let (budget, grad_cost) = (budget as f64 + 1e-9, 1.0 + BACKWARD_COST);
-    let d = 6 * c.knots;
     let mut rng = SplitMix64(0x4A7_0000 + c.seed as u64 * 131 + c.knots as u64);
-    let mut w = vec![0.0; d];
     let mut out: Vec<Rollout> = Vec::new();
-    let mut spent = 0.0;
-    // The signed indicator and the loss at w, once known (ray).
-    let mut here: Option<(f64, f64)> = None;
-    loop {
-        let (g, f0, l0) = if adjoint {
-            if !out.is_empty() && spent + grad_cost > budget {
-                return Ok(out);
-            }
-            let r = c.get(method, out.len(), &w, true)?;
-            spent += grad_cost;
-            let v = (r.grad.clone().unwrap_or_default(), r.indicator, r.loss);
-            out.push(r);
-            v
-        } else {
-            let (f0, l0) = match here {
-                Some(v) => v,
-                None => {
-                    if spent + 1.0 > budget {
-                        return Ok(out);
-                    }
-                    let r = c.get(method, out.len(), &w, false)?;
-                    spent += 1.0;
-                    let v = (r.indicator, r.loss);
-                    out.push(r);
-                    here = Some(v);
-                    v
-                }
+    line::search(
+        &vec![0.0; 6 * c.knots],
+        None,
+        line::Budget {
+            forward_rollouts: budget as f64,
+            gradient_cost: 1.0 + BACKWARD_COST,
+            restart: false,
+        },
+        adjoint,
+        &mut rng,
+        &mut |w, with_grad| {
+            let r = c.get(method, out.len(), w, with_grad)?;
+            let p = line::Probe {
+                indicator: r.indicator,
+                loss: r.loss,
+                grad: r.grad.clone(),
             };
-            ((0..d).map(|_| rng.normal()).collect::<Vec<f64>>(), f0, l0)
-        };
-        let n = g.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if !(n > 0.0 && n.is_finite()) || f0 == 0.0 {
-            return Ok(out);
-        }
-        let at = |a: f64| -> Vec<f64> {
-            w.iter()
-                .zip(&g)
-                .map(|(wi, gi)| (wi + a * gi / n).clamp(-1.0, 1.0))
-                .collect()
-        };
-        // Bracket: a step whose indicator has the other sign than at w.
-        let mut bracket = None;
-        let mut best: Option<(f64, Vec<f64>, f64)> = None;
-        'steps: for a in LINE_STEPS {
-            for a in [a, -a] {
-                if spent + 1.0 > budget {
-                    return Ok(out);
-                }
-                let x = at(a);
-                let r = c.get(method, out.len(), &x, false)?;
-                spent += 1.0;
-                let (f, l) = (r.indicator, r.loss);
-                out.push(r);
-                if l < l0 && best.as_ref().is_none_or(|b| l < b.0) {
-                    best = Some((l, x, f));
-                }
-                if f * f0 <= 0.0 {
-                    bracket = Some((a, f));
-                    break 'steps;
-                }
-            }
-        }
-        let Some((b, fb)) = bracket else {
-            match best {
-                Some((l, x, f)) => {
-                    w = x;
-                    here = Some((f, l));
-                    continue;
-                }
-                // The gradient at the same w would be the same; a random direction is redrawn.
-                None if adjoint => return Ok(out),
-                None => continue,
-            }
-        };
-        // Illinois regula falsi on [0, b] (or [b, 0]) until the budget is spent.
-        let mut ends = Illinois {
-            a: 0.0,
-            fa: f0,
-            b,
-            fb,
-        };
-        while spent + 1.0 <= budget && ends.fb != 0.0 && (ends.b - ends.a).abs() > 1e-9 {
-            let x = ends.next();
-            let r = c.get(method, out.len(), &at(x), false)?;
-            spent += 1.0;
-            ends.update(x, r.indicator);
             out.push(r);
-        }
-        return Ok(out);
-    }
-}
-
-/// A bracket `[a, b]` of a root of `f` (`f(a)·f(b) ≤ 0`) for the Illinois variant of regula
-/// falsi: `b` is always the newest point.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Illinois {
-    pub a: f64,
-    pub fa: f64,
-    pub b: f64,
-    pub fb: f64,
-}
-
-impl Illinois {
-    /// The secant's root, or the midpoint where the secant leaves the bracket.
-    pub fn next(&self) -> f64 {
-        let x = (self.a * self.fb - self.b * self.fa) / (self.fb - self.fa);
-        if x.is_finite() && (x - self.a) * (x - self.b) < 0.0 {
-            x
-        } else {
-            0.5 * (self.a + self.b)
-        }
-    }
-
-    /// Takes `f(x) = fx`. The newest point replaces `b`; `a` is kept where the signs say so,
-    /// and each time it is kept its value is halved, so that a steep curve cannot pin the
-    /// secant to one end (plain regula falsi's stall).
-    pub fn update(&mut self, x: f64, fx: f64) {
-        if fx * self.fb > 0.0 {
-            self.fa *= 0.5;
-        } else {
-            (self.a, self.fa) = (self.b, self.fb);
-        }
-        (self.b, self.fb) = (x, fx);
-    }
+            Ok(p)
+        },
+    )?;
+    Ok(out)
 }
 
 /// Random search: `w = 0`, then uniform draws in the box.
@@ -692,7 +576,7 @@ fn fmt_p(p: Option<f64>) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{verdicts, Cell, Illinois};
+    use super::{verdicts, Cell};
 
     fn cell(method: &str, dose: Vec<f64>) -> Cell {
         Cell {
@@ -723,57 +607,5 @@ mod tests {
             cell("random", low),
         ];
         assert!(verdicts(&loses).contains("No adjoint method beats"));
-    }
-
-    /// Solves `f = 0` from the bracket `[0, b]` in `n` evaluations; the last `f`.
-    fn solve(f: impl Fn(f64) -> f64, b: f64, n: usize) -> f64 {
-        let mut e = Illinois {
-            a: 0.0,
-            fa: f(0.0),
-            b,
-            fb: f(b),
-        };
-        for _ in 0..n {
-            let x = e.next();
-            e.update(x, f(x));
-        }
-        e.fb
-    }
-
-    /// A dose cliff: 4.5 g over the cup at 0, nothing past 0.4, a steep ramp at 0.27, and the
-    /// target 2 g; the signed indicator is target − delivered. One grain weighs 0.023 g.
-    fn cliff(x: f64) -> f64 {
-        2.0 - 4.5 / (1.0 + ((x - 0.27) / 0.01).exp())
-    }
-
-    #[test]
-    fn illinois_finds_the_dose_on_a_steep_cliff() {
-        let f = solve(cliff, 0.4, 12);
-        assert!(f.abs() < 0.012, "half a grain: {f}");
-        // The same from the other side of the bracket.
-        assert!(solve(|x| cliff(0.4 - x), 0.4, 12).abs() < 0.012);
-    }
-
-    #[test]
-    fn illinois_stays_in_the_bracket_on_a_staircase() {
-        // Whole grains: the dose moves in steps of 0.023 g, so only a point within one step of
-        // the target exists; the bracket must still close on it.
-        let step = |x: f64| {
-            let delivered = 4.5 / (1.0 + ((x - 0.27) / 0.01).exp());
-            2.0 - (delivered / 0.023).floor() * 0.023
-        };
-        let mut e = Illinois {
-            a: 0.0,
-            fa: step(0.0),
-            b: 0.4,
-            fb: step(0.4),
-        };
-        for _ in 0..30 {
-            let x = e.next();
-            assert!((0.0..=0.4).contains(&x), "{x} left the bracket");
-            e.update(x, step(x));
-            assert!(e.fa * e.fb <= 0.0, "lost the bracket: {e:?}");
-        }
-        assert!(e.fb.abs() <= 0.023, "{e:?}");
     }
 }

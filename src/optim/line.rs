@@ -1,0 +1,355 @@
+//! A root search of the dose along a line: the methods `line` (the adjoint's axis) and `ray`
+//! (random axes, forward only, the ablation), shared by `optimize` on the skill's five
+//! parameters and by `study refine` on a trajectory's residuals.
+//!
+//! From a point `w`, an axis `u` (the adjoint's `∂L/∂w`, normalised, or independent normal
+//! draws, normalised); forward trials at `w ± a·u` for `a` in [`LINE_STEPS`] look for a sign
+//! change of the signed indicator `f = target − delivered`. Once one brackets `f = 0`, the
+//! Illinois variant of regula falsi ([`Illinois`]) closes on it with forward rollouts. Without a
+//! bracket, the lowest-loss trial (if lower than `w`'s) becomes the new `w`.
+//!
+//! Why a line: the dose is a staircase of whole grains that is flat along most directions and
+//! steep where it moves (a spoon that empties over the cup still empties over it; a stream that
+//! leaves the cup's opening falls off a cliff). The soft count's gradient comes from the grains
+//! near an edge, so it points across it: it finds a direction in which the dose moves, but
+//! neither its sign nor its step size is reliable. A bracketed root search needs neither.
+//!
+//! Everything outside [−1, 1] is clamped: every trial stays in the box.
+
+use crate::util::SplitMix64;
+
+/// The bracketing steps along the axis, in units of the box's half-width, each tried on both
+/// sides (`+a` first).
+pub const LINE_STEPS: [f64; 3] = [0.2, 0.4, 0.8];
+
+/// Below this width (in the axis's units) a bracket has closed: the rollouts at its ends differ
+/// by less than the box's parameters can express usefully.
+const CLOSED: f64 = 1e-9;
+
+/// What a rollout tells the search.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Probe {
+    /// `target − delivered`, signed.
+    pub indicator: f64,
+    /// The scene's loss (what "lower" means when no bracket is found).
+    pub loss: f64,
+    /// `∂L/∂w`, when the rollout ran the backward pass.
+    pub grad: Option<Vec<f64>>,
+}
+
+/// How a search spends its budget.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Budget {
+    /// The compute, in forward rollouts.
+    pub forward_rollouts: f64,
+    /// What a gradient rollout costs, in forward rollouts (`1 + BACKWARD_COST`).
+    pub gradient_cost: f64,
+    /// Spend the whole budget: after a closed bracket, or where the adjoint's axis finds
+    /// neither a bracket nor a lower loss, start again from the lowest-loss point so far (a new
+    /// gradient there, or a random axis when the gradient would repeat itself or not fit the
+    /// budget). Without it the search stops there (`study refine`'s published behaviour).
+    pub restart: bool,
+}
+
+/// Runs the search from `start`. `known` is the start's signed indicator and loss where a
+/// forward rollout there already ran (a random axis then needs no new one). `adjoint` picks the
+/// axis (else random draws from `rng`); `eval(w, with_grad)` runs one rollout and records it
+/// wherever the caller keeps rollouts.
+pub fn search(
+    start: &[f64],
+    known: Option<(f64, f64)>,
+    budget: Budget,
+    adjoint: bool,
+    rng: &mut SplitMix64,
+    eval: &mut dyn FnMut(&[f64], bool) -> anyhow::Result<Probe>,
+) -> anyhow::Result<()> {
+    let limit = budget.forward_rollouts + 1e-9;
+    let d = start.len();
+    let mut w = start.to_vec();
+    let mut spent = 0.0;
+    let mut ran = false;
+    // The signed indicator and the loss at w, once known.
+    let mut here: Option<(f64, f64)> = known;
+    // The lowest-loss rollout so far: (loss, w, indicator).
+    let mut best: Option<(f64, Vec<f64>, f64)> = known.map(|(f, l)| (l, w.clone(), f));
+    // With `restart`: the adjoint's axis at this w found nothing, so the next axis is random.
+    let mut stalled = false;
+    let mut probe =
+        |x: &[f64], grad: bool, spent: &mut f64, best: &mut Option<(f64, Vec<f64>, f64)>| {
+            let p = eval(x, grad)?;
+            *spent += if grad { budget.gradient_cost } else { 1.0 };
+            if best.as_ref().is_none_or(|b| p.loss < b.0) {
+                *best = Some((p.loss, x.to_vec(), p.indicator));
+            }
+            anyhow::Ok(p)
+        };
+    loop {
+        let gradient_fits = spent + budget.gradient_cost <= limit;
+        let use_adjoint = adjoint && !stalled && (gradient_fits || !budget.restart);
+        let (g, f0, l0) = if use_adjoint {
+            if ran && !gradient_fits {
+                return Ok(());
+            }
+            let p = probe(&w, true, &mut spent, &mut best)?;
+            ran = true;
+            here = Some((p.indicator, p.loss));
+            (p.grad.unwrap_or_default(), p.indicator, p.loss)
+        } else {
+            let (f0, l0) = match here {
+                Some(v) => v,
+                None => {
+                    if spent + 1.0 > limit {
+                        return Ok(());
+                    }
+                    let p = probe(&w, false, &mut spent, &mut best)?;
+                    ran = true;
+                    here = Some((p.indicator, p.loss));
+                    (p.indicator, p.loss)
+                }
+            };
+            ((0..d).map(|_| rng.normal()).collect::<Vec<f64>>(), f0, l0)
+        };
+        stalled = false;
+        let n = g.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if !(n > 0.0 && n.is_finite()) || (f0 == 0.0 && !budget.restart) {
+            if budget.restart && spent + 1.0 <= limit {
+                // No direction from the adjoint here: a random axis next.
+                stalled = true;
+                continue;
+            }
+            return Ok(());
+        }
+        let at = |a: f64| -> Vec<f64> {
+            w.iter()
+                .zip(&g)
+                .map(|(wi, gi)| (wi + a * gi / n).clamp(-1.0, 1.0))
+                .collect()
+        };
+        // Bracket: a step whose indicator has the other sign than at w.
+        let mut bracket = None;
+        let mut lower: Option<(f64, Vec<f64>, f64)> = None;
+        'steps: for a in LINE_STEPS {
+            for a in [a, -a] {
+                if spent + 1.0 > limit {
+                    return Ok(());
+                }
+                let x = at(a);
+                let p = probe(&x, false, &mut spent, &mut best)?;
+                let (f, l) = (p.indicator, p.loss);
+                if l < l0 && lower.as_ref().is_none_or(|b| l < b.0) {
+                    lower = Some((l, x, f));
+                }
+                if f * f0 <= 0.0 {
+                    bracket = Some((a, f));
+                    break 'steps;
+                }
+            }
+        }
+        let Some((b, fb)) = bracket else {
+            match lower {
+                Some((l, x, f)) => {
+                    w = x;
+                    here = Some((f, l));
+                    continue;
+                }
+                // The gradient at the same w would be the same.
+                None if adjoint && !budget.restart => return Ok(()),
+                None => {
+                    stalled = adjoint;
+                    continue;
+                }
+            }
+        };
+        // Illinois regula falsi on [0, b] (or [b, 0]).
+        let mut ends = Illinois {
+            a: 0.0,
+            fa: f0,
+            b,
+            fb,
+        };
+        while spent + 1.0 <= limit && ends.fb != 0.0 && (ends.b - ends.a).abs() > CLOSED {
+            let x = ends.next();
+            let p = probe(&at(x), false, &mut spent, &mut best)?;
+            ends.update(x, p.indicator);
+        }
+        if !budget.restart || spent + 1.0 > limit {
+            return Ok(());
+        }
+        // Closed early: again from the lowest-loss point so far.
+        let (l, x, f) = best.clone().expect("a bracket ran rollouts");
+        w = x;
+        here = Some((f, l));
+    }
+}
+
+/// A bracket `[a, b]` of a root of `f` (`f(a)·f(b) ≤ 0`) for the Illinois variant of regula
+/// falsi: `b` is always the newest point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Illinois {
+    pub a: f64,
+    pub fa: f64,
+    pub b: f64,
+    pub fb: f64,
+}
+
+impl Illinois {
+    /// The secant's root, or the midpoint where the secant leaves the bracket.
+    pub fn next(&self) -> f64 {
+        let x = (self.a * self.fb - self.b * self.fa) / (self.fb - self.fa);
+        if x.is_finite() && (x - self.a) * (x - self.b) < 0.0 {
+            x
+        } else {
+            0.5 * (self.a + self.b)
+        }
+    }
+
+    /// Takes `f(x) = fx`. The newest point replaces `b`; `a` is kept where the signs say so,
+    /// and each time it is kept its value is halved, so that a steep curve cannot pin the
+    /// secant to one end (plain regula falsi's stall).
+    pub fn update(&mut self, x: f64, fx: f64) {
+        if fx * self.fb > 0.0 {
+            self.fa *= 0.5;
+        } else {
+            (self.a, self.fa) = (self.b, self.fb);
+        }
+        (self.b, self.fb) = (x, fx);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Solves `f = 0` from the bracket `[0, b]` in `n` evaluations; the last `f`.
+    fn solve(f: impl Fn(f64) -> f64, b: f64, n: usize) -> f64 {
+        let mut e = Illinois {
+            a: 0.0,
+            fa: f(0.0),
+            b,
+            fb: f(b),
+        };
+        for _ in 0..n {
+            let x = e.next();
+            e.update(x, f(x));
+        }
+        e.fb
+    }
+
+    /// A dose cliff: 4.5 g over the cup at 0, nothing past 0.4, a steep ramp at 0.27, and the
+    /// target 2 g; the signed indicator is target − delivered. One grain weighs 0.023 g.
+    fn cliff(x: f64) -> f64 {
+        2.0 - 4.5 / (1.0 + ((x - 0.27) / 0.01).exp())
+    }
+
+    #[test]
+    fn illinois_finds_the_dose_on_a_steep_cliff() {
+        let f = solve(cliff, 0.4, 12);
+        assert!(f.abs() < 0.012, "half a grain: {f}");
+        // The same from the other side of the bracket.
+        assert!(solve(|x| cliff(0.4 - x), 0.4, 12).abs() < 0.012);
+    }
+
+    #[test]
+    fn illinois_stays_in_the_bracket_on_a_staircase() {
+        // Whole grains: the dose moves in steps of 0.023 g, so only a point within one step of
+        // the target exists; the bracket must still close on it.
+        let step = |x: f64| {
+            let delivered = 4.5 / (1.0 + ((x - 0.27) / 0.01).exp());
+            2.0 - (delivered / 0.023).floor() * 0.023
+        };
+        let mut e = Illinois {
+            a: 0.0,
+            fa: step(0.0),
+            b: 0.4,
+            fb: step(0.4),
+        };
+        for _ in 0..30 {
+            let x = e.next();
+            assert!((0.0..=0.4).contains(&x), "{x} left the bracket");
+            e.update(x, step(x));
+            assert!(e.fa * e.fb <= 0.0, "lost the bracket: {e:?}");
+        }
+        assert!(e.fb.abs() <= 0.023, "{e:?}");
+    }
+
+    /// A dose in five parameters: a steep cliff across `v·w = 0.27`, in whole grains of 0.023 g,
+    /// and a soft mass whose gradient points across the cliff (but with the wrong sign past
+    /// it, as the cup's soft count's can). Target 2 g; the loss is the dosing loss.
+    fn dose(w: &[f64], grad: bool) -> Probe {
+        let v = [0.6, -0.3, 0.5, 0.4, 0.37];
+        let s: f64 = w.iter().zip(v).map(|(a, b)| a * b).sum();
+        let soft = 4.5 / (1.0 + ((s - 0.27) / 0.01).exp());
+        let delivered = (soft / 0.023).floor() * 0.023;
+        let f = 2.0 - delivered;
+        let dsoft = -soft * (1.0 - soft / 4.5) / 0.01;
+        Probe {
+            indicator: f,
+            loss: (f / 2.0).powi(2),
+            grad: grad.then(|| {
+                v.iter()
+                    .map(|vi| -(2.0 - soft) / 2.0 * dsoft * vi)
+                    .collect()
+            }),
+        }
+    }
+
+    fn run(adjoint: bool, restart: bool, start: [f64; 5]) -> (Vec<(bool, Probe)>, f64) {
+        let mut seen = Vec::new();
+        let budget = Budget {
+            forward_rollouts: 20.0,
+            gradient_cost: 3.4,
+            restart,
+        };
+        search(
+            &start,
+            None,
+            budget,
+            adjoint,
+            &mut SplitMix64(7),
+            &mut |w, g| {
+                assert!(
+                    w.iter().all(|x| (-1.0..=1.0).contains(x)),
+                    "left the box: {w:?}"
+                );
+                let p = dose(w, g);
+                seen.push((g, p.clone()));
+                Ok(p)
+            },
+        )
+        .unwrap();
+        let spent = seen.iter().map(|(g, _)| if *g { 3.4 } else { 1.0 }).sum();
+        (seen, spent)
+    }
+
+    #[test]
+    fn the_adjoint_line_finds_the_dose_within_a_grain_and_its_budget() {
+        // Start over-delivering (4.5 g): the dose lies across the cliff.
+        let (seen, spent) = run(true, false, [0.0; 5]);
+        assert!(seen[0].0, "the first rollout is the gradient's");
+        assert!(spent <= 20.0 + 1e-9, "{spent}");
+        let best = seen
+            .iter()
+            .map(|(_, p)| p.indicator.abs())
+            .fold(f64::MAX, f64::min);
+        assert!(best <= 0.023, "one grain: {best}");
+    }
+
+    #[test]
+    fn with_restarts_the_whole_budget_is_spent_and_never_exceeded() {
+        for adjoint in [true, false] {
+            let (_, spent) = run(adjoint, true, [0.0; 5]);
+            assert!(spent <= 20.0 + 1e-9 && spent > 19.0, "{adjoint}: {spent}");
+        }
+        // A start where nothing moves (the whole load far inside the cup, zero gradient):
+        // without restarts the adjoint stops after its gradient rollout, with them random axes
+        // spend the rest.
+        let flat = [-1.0; 5];
+        assert_eq!(run(true, false, flat).0.len(), 1);
+        let (seen, spent) = run(true, true, flat);
+        assert!(spent > 19.0, "{spent}");
+        assert!(
+            seen[1..].iter().all(|(g, _)| !g),
+            "no second gradient at the same point"
+        );
+    }
+}
