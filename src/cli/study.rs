@@ -481,6 +481,8 @@ fn refine_cmd(a: Args) -> Result<()> {
         bail!("study refine: --over must be a finite amount of at least 0 (the target's unit)");
     }
     let (starts, screen) = refine::starts(&store, &problem, a.over, a.seeds)?;
+    // The screening's rollouts ran first (their number is known only now): the methods' follow.
+    pb.set_length(pb.position() + (a.knots.len() * a.seeds * per_seed) as u64);
     let cells = refine::run(&problem, &a.knots, &starts, a.budget, &store)?;
     pb.finish_and_clear();
     let over = a.over.map_or(String::new(), |g| format!(" --over {g}"));
