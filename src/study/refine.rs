@@ -492,7 +492,7 @@ pub fn report(
     let start = match screen {
         None => "Θ_init(k)".to_string() + ",",
         Some(sc) => format!(
-            "the k-th point of the landscape map's Sobol design whose plain skill delivers at least {} {unit} more than the target: a spoon that carries more than the dose, so that the transport and the pour decide how much arrives. A residual on the transport and the pour cannot add to the spoon's load, so a start that delivers less than the target cannot reach it at all; of the {} points screened, {} deliver at least the target and {} at least {} {unit} more (the screening rollouts count against no method).",
+            "the k-th point of the landscape map's Sobol design whose plain skill delivers at least {} {unit} more than the target: a spoon that carries more than the dose, so that the transport and the pour decide how much arrives. A residual on the transport and the pour cannot add to the spoon's load, so a start that delivers less than the target cannot reach it at all; of the {} points screened, {} deliver at least the target and {} at least {} {unit} more (the screening rollouts count against no method)",
             sc.over, sc.screened, sc.reach, cells.first().map_or(0, |c| c.dose.len()), sc.over
         ),
     };
