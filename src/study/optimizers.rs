@@ -474,13 +474,46 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
     );
     let _ = writeln!(s, "Regenerate: `{}`  ", o.command);
     let _ = writeln!(s, "Machine: {}.\n", machine());
+    let (b, c) = (o.budget, crate::optim::report::BACKWARD_COST);
+    let has = |ms: &[Method]| ms.iter().any(|m| o.methods.contains(m));
+    // What each method does with its budget, for the methods on the page only.
+    let parts: [(&[Method], String); 7] = [
+        (&BASELINES, format!("random search, CMA-ES and SAC run {b} forward rollouts")),
+        (
+            &[Method::Grad, Method::Carry, Method::Smoothed],
+            format!("grad, carry and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up, and their curriculum frees θ_t and θ_p after half of each method's rollouts"),
+        ),
+        (
+            &[Method::Carry],
+            "carry is grad whose first half descends the spoon's soft carried mass against the target (at the end of the lift and of the transport) instead of the scene's loss".into(),
+        ),
+        (
+            &[Method::Hybrid, Method::Line, Method::Ray],
+            "the hybrid, line and ray spend half their budget on the same forward rollouts at Θ_init and Sobol points (the hybrid's global phase), then go on from the lowest-loss one".into(),
+        ),
+        (
+            &[Method::Hybrid],
+            "the hybrid takes trust-region steps along the adjoint gradient".into(),
+        ),
+        (
+            &[Method::Line],
+            format!("line takes one gradient rollout for an axis, tries forward rollouts at ±{:?} along it for a sign change of target − delivered, closes on it by Illinois regula falsi, and starts again from its lowest-loss point (a new gradient there) until its budget is spent", crate::optim::line::LINE_STEPS),
+        ),
+        (
+            &[Method::Ray],
+            "ray is line with random axes and forward rollouts only: the ablation that says whether the adjoint's axis matters (line's column p < ray)".into(),
+        ),
+    ];
+    let how: Vec<String> = parts
+        .into_iter()
+        .filter(|(ms, _)| has(ms))
+        .map(|(_, t)| t)
+        .collect();
     let _ = writeln!(
         s,
-        "Each task is one skill scene. Every method starts seed k from the same Θ_init and gets the compute of {b} forward rollouts per seed: random search, CMA-ES and SAC run {b} forward rollouts; grad, carry and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up; the hybrid spends half its budget on Sobol points and the rest on trust-region steps along the adjoint gradient; carry is grad whose first half descends the spoon's soft carried mass against the target (at the end of the lift and of the transport) instead of the scene's loss. The curriculum of grad, carry and smoothed frees θ_t and θ_p after half of each method's rollouts. line takes one gradient rollout for an axis, tries forward rollouts at ±{steps:?} along it for a sign change of target − delivered, and closes on it by Illinois regula falsi; it starts again from its lowest-loss point (a new gradient there) until its budget is spent. ray is line with random axes and forward rollouts only: the ablation that says whether the adjoint's axis matters (its p is line's column p < ray). \
+        "Each task is one skill scene. Every method starts seed k from the same Θ_init and gets the compute of {b} forward rollouts per seed: {}. \
 A method's score after some compute is the dose error |target − delivered| of its rollout of lowest loss so far. **Equal compute** reads every method at each seed's smallest spend of simulated particle-substeps over the methods; **equal rollouts** reads every method after the fewest rollouts any method ran. p is the one-sided exact Wilcoxon signed-rank p-value, over the paired seeds, that the method's dose error at equal compute is smaller than the baseline's (ties dropped); a verdict needs p < {ALPHA}. Run time per seed is one core's share (two rollouts run side by side).\n",
-        b = o.budget,
-        c = crate::optim::report::BACKWARD_COST,
-        steps = crate::optim::line::LINE_STEPS,
+        how.join("; "),
     );
     let _ = writeln!(
         s,
