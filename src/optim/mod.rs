@@ -519,7 +519,15 @@ mod tests {
         // 20 / 3.4 = 5.9: six gradient rollouts; smoothed rounds up to whole steps of 4.
         assert_eq!(s.epochs_for(Method::Grad), 6);
         assert_eq!(s.epochs_for(Method::Smoothed), 8);
-        for m in [Method::Random, Method::Cmaes, Method::Sac, Method::Hybrid] {
+        // The hybrid, line and ray count their gradient rollouts within a budget of forward ones.
+        for m in [
+            Method::Random,
+            Method::Cmaes,
+            Method::Sac,
+            Method::Hybrid,
+            Method::Line,
+            Method::Ray,
+        ] {
             assert_eq!(s.epochs_for(m), 20, "{m:?}");
         }
         // The curriculum switches after the same fraction of each method's rollouts: half of
@@ -533,10 +541,11 @@ mod tests {
             settings(20, false).rmsprop_for(Method::Grad).switch_epoch,
             15
         );
-        // The run's compute: grad, smoothed and carry at 3.4 forward rollouts each, the four
-        // forward-only methods at one; at equal compute the gradient methods' few rollouts.
-        assert!((settings(20, false).forward_rollouts() - (3.0 * 20.0 * 3.4 + 80.0)).abs() < 1e-9);
-        assert!((s.forward_rollouts() - ((6.0 + 8.0 + 6.0) * 3.4 + 80.0)).abs() < 1e-9);
+        // The run's compute: grad, smoothed and carry at 3.4 forward rollouts each, the
+        // six others at one (the hybrid, line and ray within that); at equal compute the gradient
+        // methods' few rollouts.
+        assert!((settings(20, false).forward_rollouts() - (3.0 * 20.0 * 3.4 + 120.0)).abs() < 1e-9);
+        assert!((s.forward_rollouts() - ((6.0 + 8.0 + 6.0) * 3.4 + 120.0)).abs() < 1e-9);
         // Without it every method gets the same rollouts (the paper's framing).
         let p = settings(20, false);
         assert!(Method::ALL.iter().all(|&m| p.epochs_for(m) == 20));
