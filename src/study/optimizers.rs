@@ -470,7 +470,12 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "# Optimisation benchmark: every method at equal compute\n"
+        "# Optimisation benchmark: {} at equal compute\n",
+        o.methods
+            .iter()
+            .map(|m| m.name())
+            .collect::<Vec<_>>()
+            .join(", ")
     );
     let _ = writeln!(s, "Regenerate: `{}`  ", o.command);
     let _ = writeln!(s, "Machine: {}.\n", machine());
