@@ -67,7 +67,6 @@ pub fn search(
     let d = start.len();
     let mut w = start.to_vec();
     let mut spent = 0.0;
-    let mut ran = false;
     // The signed indicator and the loss at w, once known.
     let mut here: Option<(f64, f64)> = known;
     // The lowest-loss rollout so far: (loss, w, indicator).
@@ -87,11 +86,11 @@ pub fn search(
         let gradient_fits = spent + budget.gradient_cost <= limit;
         let use_adjoint = adjoint && !stalled && (gradient_fits || !budget.restart);
         let (g, f0, l0) = if use_adjoint {
-            if ran && !gradient_fits {
+            // The first gradient runs whatever the budget; later ones only where they fit.
+            if spent > 0.0 && !gradient_fits {
                 return Ok(());
             }
             let p = probe(&w, true, &mut spent, &mut best)?;
-            ran = true;
             here = Some((p.indicator, p.loss));
             (p.grad.unwrap_or_default(), p.indicator, p.loss)
         } else {
@@ -102,7 +101,6 @@ pub fn search(
                         return Ok(());
                     }
                     let p = probe(&w, false, &mut spent, &mut best)?;
-                    ran = true;
                     here = Some((p.indicator, p.loss));
                     (p.indicator, p.loss)
                 }
