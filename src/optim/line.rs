@@ -8,6 +8,10 @@
 //! Illinois variant of regula falsi ([`Illinois`]) closes on it with forward rollouts. Without a
 //! bracket, the lowest-loss trial (if lower than `w`'s) becomes the new `w`.
 //!
+//! A caller that already knows a point on the other side of the target (a `partner`, say from a
+//! global phase whose rollouts both over- and under-deliver) hands it over: the segment from
+//! `w` to it is then the first bracket, closed before any axis is tried, at no cost in probes.
+//!
 //! Why a line: the dose is a staircase of whole grains that is flat along most directions and
 //! steep where it moves (a spoon that empties over the cup still empties over it; a stream that
 //! leaves the cup's opening falls off a cliff). The soft count's gradient comes from the grains
@@ -22,9 +26,14 @@ use crate::util::SplitMix64;
 /// sides (`+a` first).
 pub const LINE_STEPS: [f64; 3] = [0.2, 0.4, 0.8];
 
-/// Below this width (in the axis's units) a bracket has closed: the rollouts at its ends differ
-/// by less than the box's parameters can express usefully.
-const CLOSED: f64 = 1e-9;
+/// The narrowest bracket that [`Budget::closed`] accepts: a floating-point tie.
+pub const CLOSED: f64 = 1e-9;
+
+/// How close two skills (Θ in [−1, 1]⁵) may be before `optimize`'s `line` and `ray` stop
+/// telling them apart: 1 % of the box's half-width, i.e. 0.04 mm of scoop depth, 0.2° of scoop
+/// angle or 0.45° of pour angle in the default ranges, about a robot arm's repeatability. A
+/// bracket narrower than this has closed (chosen from the ranges, not tuned on the benchmark).
+pub const SKILL_REPEATABILITY: f64 = 0.01;
 
 /// What a rollout tells the search.
 #[derive(Clone, Debug, PartialEq)]
@@ -49,15 +58,23 @@ pub struct Budget {
     /// gradient there, or a random axis when the gradient would repeat itself or not fit the
     /// budget). Without it the search stops there (`study refine`'s published behaviour).
     pub restart: bool,
+    /// A bracket narrower than this (Euclidean, in the parameters' units) has closed: with a dose
+    /// in whole grains, a bracket that straddles a jump of several grains would otherwise take
+    /// the rest of the budget to shrink onto the jump, which no restart could then improve.
+    /// At least [`CLOSED`].
+    pub closed: f64,
 }
 
 /// Runs the search from `start`. `known` is the start's signed indicator and loss where a
-/// forward rollout there already ran (a random axis then needs no new one). `adjoint` picks the
-/// axis (else random draws from `rng`); `eval(w, with_grad)` runs one rollout and records it
-/// wherever the caller keeps rollouts.
+/// forward rollout there already ran (a random axis then needs no new one). `partner` is a point
+/// already run and its signed indicator: where that has the other sign than `known`'s, the
+/// segment between them is searched first. `adjoint` picks the axis (else random draws from
+/// `rng`); `eval(w, with_grad)` runs one rollout and records it wherever the caller keeps
+/// rollouts.
 pub fn search(
     start: &[f64],
     known: Option<(f64, f64)>,
+    partner: Option<(&[f64], f64)>,
     budget: Budget,
     adjoint: bool,
     rng: &mut SplitMix64,
@@ -82,6 +99,44 @@ pub fn search(
             }
             anyhow::Ok(p)
         };
+    let closed = budget.closed.max(CLOSED);
+    if let (Some((x, fx)), Some((f0, _))) = (partner, known) {
+        if fx * f0 < 0.0 && x.len() == d {
+            // The segment w → x, at t ∈ [0, 1]: a bracket already.
+            let length = x
+                .iter()
+                .zip(&w)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            let at = |t: f64| -> Vec<f64> {
+                w.iter()
+                    .zip(x)
+                    .map(|(wi, xi)| (wi + t * (xi - wi)).clamp(-1.0, 1.0))
+                    .collect()
+            };
+            let mut ends = Illinois {
+                a: 0.0,
+                fa: f0,
+                b: 1.0,
+                fb: fx,
+            };
+            while spent + 1.0 <= limit
+                && ends.fb != 0.0
+                && (ends.b - ends.a).abs() * length > closed
+            {
+                let t = ends.next();
+                let p = probe(&at(t), false, &mut spent, &mut best)?;
+                ends.update(t, p.indicator);
+            }
+            if !budget.restart || spent + 1.0 > limit {
+                return Ok(());
+            }
+            let (l, x, f) = best.clone().expect("the start is known");
+            w = x;
+            here = Some((f, l));
+        }
+    }
     loop {
         let gradient_fits = spent + budget.gradient_cost <= limit;
         let use_adjoint = adjoint && !stalled && (gradient_fits || !budget.restart);
@@ -165,7 +220,7 @@ pub fn search(
             b,
             fb,
         };
-        while spent + 1.0 <= limit && ends.fb != 0.0 && (ends.b - ends.a).abs() > CLOSED {
+        while spent + 1.0 <= limit && ends.fb != 0.0 && (ends.b - ends.a).abs() > closed {
             let x = ends.next();
             let p = probe(&at(x), false, &mut spent, &mut best)?;
             ends.update(x, p.indicator);
@@ -292,15 +347,34 @@ mod tests {
     }
 
     fn run(adjoint: bool, restart: bool, start: [f64; 5]) -> (Vec<(bool, Probe)>, f64) {
+        run_from(adjoint, restart, CLOSED, start, None)
+    }
+
+    /// [`run`] with a bracket width and a partner (its point; the start's and its indicators are
+    /// the `dose`'s, as a caller that ran both would know them).
+    fn run_from(
+        adjoint: bool,
+        restart: bool,
+        closed: f64,
+        start: [f64; 5],
+        partner: Option<[f64; 5]>,
+    ) -> (Vec<(bool, Probe)>, f64) {
         let mut seen = Vec::new();
         let budget = Budget {
             forward_rollouts: 20.0,
             gradient_cost: 3.4,
             restart,
+            closed,
         };
+        let known = partner.map(|_| {
+            let p = dose(&start, false);
+            (p.indicator, p.loss)
+        });
+        let partner = partner.map(|x| (x, dose(&x, false).indicator));
         search(
             &start,
-            None,
+            known,
+            partner.as_ref().map(|(x, f)| (&x[..], *f)),
             budget,
             adjoint,
             &mut SplitMix64(7),
@@ -330,6 +404,31 @@ mod tests {
             .map(|(_, p)| p.indicator.abs())
             .fold(f64::MAX, f64::min);
         assert!(best <= 0.023, "one grain: {best}");
+    }
+
+    #[test]
+    fn a_partner_across_the_target_is_searched_first_and_closes_at_the_width_asked() {
+        // The start over-delivers (4.5 g), the partner delivers nothing: the segment brackets.
+        let (start, far) = ([0.0; 5], [0.5; 5]);
+        let (seen, _) = run_from(true, false, CLOSED, start, Some(far));
+        assert!(
+            seen.iter().all(|(g, _)| !g),
+            "no gradient on a known bracket"
+        );
+        let best = seen
+            .iter()
+            .map(|(_, p)| p.indicator.abs())
+            .fold(f64::MAX, f64::min);
+        assert!(best <= 0.023, "one grain: {best}");
+        // With a coarse width the bracket closes early and, with restarts, the adjoint's axis
+        // takes the rest of the budget from the lowest-loss point.
+        let (seen, spent) = run_from(true, true, 0.05, start, Some(far));
+        let first_gradient = seen.iter().position(|(g, _)| *g).expect("a restart");
+        assert!(first_gradient > 0, "the segment comes first");
+        assert!(spent <= 20.0 + 1e-9 && spent > 19.0, "{spent}");
+        // A partner on the same side is no bracket: the adjoint's axis comes first.
+        let (seen, _) = run_from(true, false, CLOSED, start, Some([-0.1; 5]));
+        assert!(seen[0].0, "{:?}", seen[0]);
     }
 
     #[test]

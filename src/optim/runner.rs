@@ -378,7 +378,9 @@ impl Runner<'_> {
 
     /// `line` or `ray` ([`super::line`]): the hybrid's global phase, then the root search from
     /// its lowest-loss point, with restarts, within the compute of `epochs` forward rollouts.
-    /// A rollout's batch is its place in the seed's sequence.
+    /// Where the global phase both over- and under-delivered, the search first closes the
+    /// segment from that point to the lowest-loss rollout on the target's other side. A rollout's
+    /// batch is its place in the seed's sequence.
     pub(super) fn line(&self, s: &Settings, method: Method) -> anyhow::Result<()> {
         let GlobalPhase {
             ran: global, found, ..
@@ -387,14 +389,23 @@ impl Runner<'_> {
             forward_rollouts: (s.epochs - global) as f64,
             gradient_cost: 1.0 + report::BACKWARD_COST,
             restart: true,
+            closed: super::line::SKILL_REPEATABILITY,
         };
         (0..s.seeds).into_par_iter().try_for_each(|k| {
             let start = lowest(&found, k).context("the global phase ran nothing")?;
+            let f0 = start.outcome.indicator;
+            let other_side: Vec<Record> = found
+                .iter()
+                .filter(|r| r.outcome.indicator * f0 < 0.0)
+                .cloned()
+                .collect();
+            let partner = lowest(&other_side, k);
             let mut rng = SplitMix64(method_seed(method, k));
             let mut batch = global;
             super::line::search(
                 &start.theta,
-                Some((start.outcome.indicator, start.outcome.loss)),
+                Some((f0, start.outcome.loss)),
+                partner.map(|r| (&r.theta[..], r.outcome.indicator)),
                 budget,
                 method == Method::Line,
                 &mut rng,

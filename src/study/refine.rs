@@ -325,10 +325,12 @@ fn line_search(c: &Ctx, budget: usize, adjoint: bool) -> anyhow::Result<Vec<Roll
     line::search(
         &vec![0.0; 6 * c.knots],
         None,
+        None,
         line::Budget {
             forward_rollouts: budget as f64,
             gradient_cost: 1.0 + BACKWARD_COST,
             restart: false,
+            closed: line::CLOSED,
         },
         adjoint,
         &mut rng,

@@ -23,7 +23,7 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
     let (b, c) = (o.budget, crate::optim::report::BACKWARD_COST);
     let has = |ms: &[Method]| ms.iter().any(|m| o.methods.contains(m));
     // What each method does with its budget, for the methods on the page only.
-    let parts: [(&[Method], String); 7] = [
+    let parts: [(&[Method], String); 8] = [
         (&BASELINES, format!("random search, CMA-ES and SAC run {b} forward rollouts")),
         (
             &[Method::Grad, Method::Carry, Method::Smoothed],
@@ -42,8 +42,12 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
             "the hybrid takes trust-region steps along the adjoint gradient".into(),
         ),
         (
+            &[Method::Line, Method::Ray],
+            format!("where that phase both over- and under-delivered, line and ray first close the segment from its lowest-loss point to the lowest-loss rollout on the target's other side by Illinois regula falsi (forward rollouts, until the bracket is narrower than {} % of the box's half-width)", crate::optim::line::SKILL_REPEATABILITY * 100.0),
+        ),
+        (
             &[Method::Line],
-            format!("line takes one gradient rollout for an axis, tries forward rollouts at ±{:?} along it for a sign change of target − delivered, closes on it by Illinois regula falsi, and starts again from its lowest-loss point (a new gradient there) until its budget is spent", crate::optim::line::LINE_STEPS),
+            format!("line then takes one gradient rollout for an axis, tries forward rollouts at ±{:?} along it for a sign change of target − delivered, closes on it by Illinois regula falsi, and starts again from its lowest-loss point (a new gradient there) until its budget is spent", crate::optim::line::LINE_STEPS),
         ),
         (
             &[Method::Ray],
