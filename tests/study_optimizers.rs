@@ -58,6 +58,10 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
     // line is tested against its ablation ray.
     assert!(page.contains("| p < ray |"), "{page}");
     assert!(page.contains("line against its ablation ray (random axes): p = "));
+    assert!(
+        page.contains("No worse than the best baseline? The one-sided p that "),
+        "{page}"
+    );
 
     // The hybrid's run: half the budget (3 forward rollouts, Θ_init first) on Sobol points,
     // then a gradient rollout at the best of them; its compute never passes 7 forward

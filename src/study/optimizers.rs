@@ -140,6 +140,25 @@ impl TaskResult {
             .collect()
     }
 
+    /// The baseline of lowest mean dose error at equal compute, and for each gradient-informed
+    /// method the one-sided Wilcoxon p that this baseline's dose error is smaller than the
+    /// method's: the test of "no worse than the best baseline" (p < [`ALPHA`]: shown worse).
+    pub fn worse_than_best_baseline(&self) -> Option<(Method, Vec<(Method, Option<f64>)>)> {
+        let ranked = self.ranked();
+        let base = ranked.iter().find(|r| BASELINES.contains(&r.method))?;
+        let ps = ranked
+            .iter()
+            .filter(|r| r.method.uses_adjoint())
+            .map(|r| {
+                (
+                    r.method,
+                    wilcoxon_less(&base.dose_equal_compute, &r.dose_equal_compute),
+                )
+            })
+            .collect();
+        Some((base.method, ps))
+    }
+
     /// The rows ranked by mean dose error at equal compute.
     pub fn ranked(&self) -> Vec<&Row> {
         let mut v: Vec<&Row> = self.rows.iter().collect();
@@ -453,5 +472,44 @@ mod tests {
         assert!((wilcoxon_less(&[1.0, 1.0], &[0.0, 0.0]).unwrap() - 1.0).abs() < 1e-15);
         // ... both negative: only the empty sum is <= 0, p = 1/4.
         assert!((wilcoxon_less(&[0.0, 0.0], &[1.0, 1.0]).unwrap() - 0.25).abs() < 1e-15);
+    }
+
+    #[test]
+    fn no_worse_is_tested_against_the_best_baseline() {
+        let row = |method, errors: &[f64]| Row {
+            method,
+            dose_equal_compute: errors.to_vec(),
+            dose_equal_rollouts: errors.to_vec(),
+            rollouts_in_budget: 20.0,
+            particle_substeps: 1.0,
+            rollout_s: 1.0,
+            p_vs: BTreeMap::new(),
+        };
+        let seeds: Vec<f64> = (0..10).map(|i| 0.5 + 0.01 * i as f64).collect();
+        let shifted = |d: f64| seeds.iter().map(|x| x + d).collect::<Vec<_>>();
+        let t = TaskResult {
+            scene: "t".into(),
+            unit: "g".into(),
+            target: 5.0,
+            seeds: 10,
+            equal_rollouts: 20,
+            budget_particle_substeps: 1.0,
+            rows: vec![
+                row(Method::Random, &shifted(0.3)),
+                row(Method::Sac, &seeds),
+                row(Method::Line, &shifted(1.0)),
+                row(Method::Ray, &shifted(2.0)),
+                row(Method::Hybrid, &seeds),
+            ],
+            wall_s: BTreeMap::new(),
+        };
+        let (base, ps) = t.worse_than_best_baseline().unwrap();
+        // SAC is the best baseline (random is worse); ray uses no adjoint and is not tested.
+        assert_eq!(base, Method::Sac);
+        assert_eq!(ps.len(), 2, "{ps:?}");
+        let p = |m| ps.iter().find(|(x, _)| *x == m).unwrap().1;
+        assert!((p(Method::Line).unwrap() - 1.0 / 1024.0).abs() < 1e-15);
+        // Equal on every seed: no test, so not shown worse.
+        assert_eq!(p(Method::Hybrid), None);
     }
 }

@@ -118,6 +118,28 @@ A method's score after some compute is the dose error |target − delivered| of 
                 }
             );
         }
+        if let Some((base, ps)) = t.worse_than_best_baseline() {
+            if !ps.is_empty() {
+                let _ = writeln!(
+                    s,
+                    "No worse than the best baseline? The one-sided p that {} does better than each gradient-informed method (p < {ALPHA}: shown worse): {}.\n",
+                    base.name(),
+                    ps.iter()
+                        .map(|(m, p)| format!(
+                            "{} {}{}",
+                            m.name(),
+                            p_text(*p),
+                            if p.is_some_and(|p| p < ALPHA) {
+                                " (worse)"
+                            } else {
+                                ""
+                            }
+                        ))
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                );
+            }
+        }
         s.push_str(&table(t));
         s.push('\n');
     }
