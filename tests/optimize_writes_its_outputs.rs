@@ -98,7 +98,7 @@ fn without_method_optimize_runs_the_benchmarks_verdict_at_equal_compute() {
         .map(|k| k.as_str())
         .collect();
     ran.sort_unstable();
-    assert_eq!(ran, ["cmaes", "hybrid", "random", "sac"]);
+    assert_eq!(ran, ["cmaes", "line", "random", "sac"]);
     let settings: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("settings.json")).unwrap()).unwrap();
     assert_eq!(settings["equal_compute"], true, "{settings}");

@@ -11,7 +11,7 @@ pub struct Args {
     /// The scene whose tool has a skill control.
     scene: PathBuf,
     /// grad, cmaes, sac, random, smoothed, hybrid, carry, line, ray, paper (the first four, 30 rollouts
-    /// each), default (sac, hybrid, cmaes, random at equal compute: the benchmark's verdict, see
+    /// each), default (line, sac, cmaes, random at equal compute: the benchmark's verdict, see
     /// docs/results/optimisation.md) or all (comma separated). Default: default.
     #[arg(long, value_delimiter = ',')]
     method: Vec<String>,
