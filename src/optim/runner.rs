@@ -226,14 +226,14 @@ impl Runner<'_> {
 
     pub(super) fn sac(&self, s: &Settings) -> anyhow::Result<()> {
         let mut agents: Vec<Sac> = (0..s.seeds)
-            .map(|k| Sac::new(s.sac, s.start(k), method_seed(Method::Sac, k)))
+            .map(|k| Sac::new(s.sac, &s.start(k), method_seed(Method::Sac, k)))
             .collect::<candle_core::Result<_>>()?;
         // The temperature and the reward's standardisation, per seed and episode.
         let mut log = String::from("seed,episode,alpha,loss_mean,loss_std\n");
         for episode in 0..s.epochs {
             let actions: Vec<[f64; 5]> = agents
                 .iter_mut()
-                .map(|a| a.act())
+                .map(|a| a.act().map(|v| std::array::from_fn(|i| v[i])))
                 .collect::<candle_core::Result<_>>()?;
             let recs: Vec<Record> = actions
                 .par_iter()
@@ -243,7 +243,7 @@ impl Runner<'_> {
             agents
                 .par_iter_mut()
                 .zip(recs.par_iter())
-                .try_for_each(|(a, r)| a.observe(r.theta, r.outcome.loss))?;
+                .try_for_each(|(a, r)| a.observe(&r.theta, r.outcome.loss))?;
             for (k, a) in agents.iter().enumerate() {
                 let (alpha, mean, std) = a.stats()?;
                 let _ = writeln!(log, "{k},{},{alpha},{mean},{std}", episode + 1);

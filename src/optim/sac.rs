@@ -3,10 +3,10 @@
 //! is one rollout, and the reward is `−L`.
 //!
 //! Networks (candle, f64, CPU): the actor maps the observation to the mean and log-std of a
-//! Gaussian over `u ∈ R⁵`, `Θ = tanh(u)`; two critics `Q₁, Q₂(s, Θ)`; two hidden layers of
+//! Gaussian over `u ∈ Rᵈ` (d = 5 for the skill, 6·knots for a refined trajectory), `Θ = tanh(u)`; two critics `Q₁, Q₂(s, Θ)`; two hidden layers of
 //! [`SacConfig::hidden`] ReLU units each. Adam (no weight decay) with the paper's learning rates
 //! (1e-3 for actor, critics and the entropy temperature α, which is tuned automatically towards
-//! the target entropy `−dim Θ = −5`). Minibatches of 8 transitions are drawn from the replay
+//! the target entropy `−dim Θ`). Minibatches of 8 transitions are drawn from the replay
 //! buffer of all rollouts so far.
 //!
 //! What the one-rollout episodes imply, and how it is handled:
@@ -68,12 +68,10 @@ impl Default for SacConfig {
     }
 }
 
-const DIM: usize = 5;
 const LOG_STD_MIN: f64 = -5.0;
 const LOG_STD_MAX: f64 = 1.0;
 /// `ln(1 − tanh²u + SQUASH_EPS)`: keeps the squashing correction finite at `|Θ| → 1`.
 const SQUASH_EPS: f64 = 1e-6;
-const TARGET_ENTROPY: f64 = -(DIM as f64);
 
 /// One SAC agent (one seed).
 pub struct Sac {
@@ -87,9 +85,9 @@ pub struct Sac {
     opt_q: AdamW,
     opt_alpha: AdamW,
     /// (Θ, loss) of every rollout so far.
-    buffer: Vec<([f64; DIM], f64)>,
+    buffer: Vec<(Vec<f64>, f64)>,
     rng: SplitMix64,
-    theta_init: [f64; DIM],
+    theta_init: Vec<f64>,
 }
 
 fn adam(vars: Vec<Var>, lr: f64) -> Result<AdamW> {
@@ -104,11 +102,13 @@ fn adam(vars: Vec<Var>, lr: f64) -> Result<AdamW> {
 }
 
 impl Sac {
-    pub fn new(cfg: SacConfig, theta_init: [f64; DIM], seed: u64) -> Result<Sac> {
+    /// An agent over `Θ ∈ (−1, 1)ᵈ`, d = `theta_init.len()`, whose first action is `theta_init`.
+    pub fn new(cfg: SacConfig, theta_init: &[f64], seed: u64) -> Result<Sac> {
+        let dim = theta_init.len();
         let dev = Device::Cpu;
         let mut rng = SplitMix64(seed);
         let h = cfg.hidden;
-        let actor = Mlp::new(&[1, h, h, 2 * DIM], &mut rng, &dev)?;
+        let actor = Mlp::new(&[1, h, h, 2 * dim], &mut rng, &dev)?;
         // Centre the initial policy on Θ_init: small output weights, and output biases giving
         // mean atanh(Θ_init) and log-std ln(init_std).
         {
@@ -118,11 +118,11 @@ impl Sac {
                 .iter()
                 .map(|t| t.clamp(-0.95, 0.95).atanh())
                 .collect();
-            bias.extend(std::iter::repeat_n(cfg.init_std.ln(), DIM));
-            b.set(&Tensor::from_vec(bias, 2 * DIM, &dev)?)?;
+            bias.extend(std::iter::repeat_n(cfg.init_std.ln(), dim));
+            b.set(&Tensor::from_vec(bias, 2 * dim, &dev)?)?;
         }
-        let q1 = Mlp::new(&[1 + DIM, h, h, 1], &mut rng, &dev)?;
-        let q2 = Mlp::new(&[1 + DIM, h, h, 1], &mut rng, &dev)?;
+        let q1 = Mlp::new(&[1 + dim, h, h, 1], &mut rng, &dev)?;
+        let q2 = Mlp::new(&[1 + dim, h, h, 1], &mut rng, &dev)?;
         let log_alpha = Var::from_tensor(&Tensor::zeros(1, DType::F64, &dev)?)?;
         let opt_actor = adam(actor.vars(), cfg.actor_lr)?;
         let mut qv = q1.vars();
@@ -141,15 +141,21 @@ impl Sac {
             opt_alpha,
             buffer: Vec::new(),
             rng,
-            theta_init,
+            theta_init: theta_init.to_vec(),
         })
+    }
+
+    /// d, the dimension of Θ.
+    fn dim(&self) -> usize {
+        self.theta_init.len()
     }
 
     /// Mean and clamped log-std of the policy at observations `s` (`[n, 1]`).
     fn policy(&self, s: &Tensor) -> Result<(Tensor, Tensor)> {
         let out = self.actor.forward(s)?;
-        let mu = out.narrow(1, 0, DIM)?;
-        let ls = out.narrow(1, DIM, DIM)?.clamp(LOG_STD_MIN, LOG_STD_MAX)?;
+        let d = self.dim();
+        let mu = out.narrow(1, 0, d)?;
+        let ls = out.narrow(1, d, d)?.clamp(LOG_STD_MIN, LOG_STD_MAX)?;
         Ok((mu, ls))
     }
 
@@ -158,21 +164,21 @@ impl Sac {
     }
 
     /// The Θ of the next rollout: Θ_init for the first, a policy sample after that.
-    pub fn act(&mut self) -> Result<[f64; DIM]> {
+    pub fn act(&mut self) -> Result<Vec<f64>> {
         if self.buffer.is_empty() {
-            return Ok(self.theta_init);
+            return Ok(self.theta_init.clone());
         }
+        let d = self.dim();
         let s = Tensor::ones((1, 1), DType::F64, &self.dev)?;
         let (mu, ls) = self.policy(&s)?;
-        let eps = Tensor::from_vec(self.normals(DIM), (1, DIM), &self.dev)?;
+        let eps = Tensor::from_vec(self.normals(d), (1, d), &self.dev)?;
         let a = (mu + (ls.exp()? * eps)?)?.tanh()?;
-        let v = a.flatten_all()?.to_vec1::<f64>()?;
-        Ok(std::array::from_fn(|k| v[k]))
+        a.flatten_all()?.to_vec1::<f64>()
     }
 
     /// Adds a finished rollout and trains on the buffer.
-    pub fn observe(&mut self, theta: [f64; DIM], loss: f64) -> Result<()> {
-        self.buffer.push((theta, loss));
+    pub fn observe(&mut self, theta: &[f64], loss: f64) -> Result<()> {
+        self.buffer.push((theta.to_vec(), loss));
         if self.buffer.len() >= self.cfg.batch {
             for _ in 0..self.cfg.updates_per_rollout {
                 self.update()?;
@@ -183,15 +189,18 @@ impl Sac {
 
     /// One gradient step of the critics, the actor and the temperature.
     fn update(&mut self) -> Result<()> {
-        let b = self.cfg.batch;
+        let (b, d) = (self.cfg.batch, self.dim());
         let (mean, std) = self.loss_stats();
         let idx: Vec<usize> = (0..b).map(|_| self.rng.index(self.buffer.len())).collect();
-        let a: Vec<f64> = idx.iter().flat_map(|&i| self.buffer[i].0).collect();
+        let a: Vec<f64> = idx
+            .iter()
+            .flat_map(|&i| self.buffer[i].0.iter().copied())
+            .collect();
         let r: Vec<f64> = idx
             .iter()
             .map(|&i| -(self.buffer[i].1 - mean) / std)
             .collect();
-        let a = Tensor::from_vec(a, (b, DIM), &self.dev)?;
+        let a = Tensor::from_vec(a, (b, d), &self.dev)?;
         let y = Tensor::from_vec(r, (b, 1), &self.dev)?;
         let s = Tensor::ones((b, 1), DType::F64, &self.dev)?;
 
@@ -202,7 +211,7 @@ impl Sac {
         self.opt_q.backward_step(&(l1 + l2)?)?;
 
         // Actor: minimise E[α·log π(Θ) − min(Q₁, Q₂)(Θ)] with the reparameterised sample.
-        let eps = Tensor::from_vec(self.normals(b * DIM), (b, DIM), &self.dev)?;
+        let eps = Tensor::from_vec(self.normals(b * d), (b, d), &self.dev)?;
         let (mu, ls) = self.policy(&s)?;
         let theta = (mu + (ls.exp()? * &eps)?)?.tanh()?;
         let gauss = (eps.sqr()?.affine(-0.5, -0.5 * std::f64::consts::TAU.ln())? - &ls)?;
@@ -218,7 +227,8 @@ impl Sac {
         self.opt_actor.backward_step(&actor_loss)?;
 
         // Temperature: minimise −log α·(log π + target entropy).
-        let target = log_pi.detach().affine(1.0, TARGET_ENTROPY)?;
+        // The target entropy is −dim Θ.
+        let target = log_pi.detach().affine(1.0, -(d as f64))?;
         let alpha_loss = (target
             .broadcast_mul(self.log_alpha.as_tensor())?
             .mean_all()?
@@ -267,21 +277,21 @@ mod tests {
     #[test]
     fn sac_improves_on_a_quadratic_bowl() {
         let best = [0.6, -0.4, 0.2, 0.0, -0.7];
-        let loss = |t: &[f64; DIM]| {
+        let loss = |t: &[f64]| {
             1.0 + t
                 .iter()
                 .zip(best)
                 .map(|(a, b)| (a - b) * (a - b))
                 .sum::<f64>()
         };
-        let mut sac = Sac::new(SacConfig::default(), [-0.5, 0.5, -0.5, 0.5, 0.5], 3).unwrap();
+        let mut sac = Sac::new(SacConfig::default(), &[-0.5, 0.5, -0.5, 0.5, 0.5], 3).unwrap();
         let mut losses = Vec::new();
         for _ in 0..120 {
             let t = sac.act().unwrap();
             assert!(t.iter().all(|x| x.abs() < 1.0 && x.is_finite()));
             let l = loss(&t);
             losses.push(l);
-            sac.observe(t, l).unwrap();
+            sac.observe(&t, l).unwrap();
         }
         let first: f64 = losses[1..21].iter().sum::<f64>() / 20.0;
         let last: f64 = losses[100..].iter().sum::<f64>() / 20.0;
@@ -295,7 +305,7 @@ mod tests {
     #[test]
     fn sac_learns_a_bandit_whose_losses_differ_by_a_few_percent() {
         let best = [0.5, -0.3, 0.4, 0.1, -0.6];
-        let loss = |t: &[f64; DIM]| {
+        let loss = |t: &[f64]| {
             440.0
                 + 1.0
                     * t.iter()
@@ -303,13 +313,13 @@ mod tests {
                         .map(|(a, b)| (a - b) * (a - b))
                         .sum::<f64>()
         };
-        let mut sac = Sac::new(SacConfig::default(), [-0.5, 0.5, -0.5, 0.5, 0.5], 7).unwrap();
+        let mut sac = Sac::new(SacConfig::default(), &[-0.5, 0.5, -0.5, 0.5, 0.5], 7).unwrap();
         let mut excess = Vec::new();
         for _ in 0..120 {
             let t = sac.act().unwrap();
             let l = loss(&t);
             excess.push(l - 440.0);
-            sac.observe(t, l).unwrap();
+            sac.observe(&t, l).unwrap();
         }
         let first: f64 = excess[1..21].iter().sum::<f64>() / 20.0;
         let last: f64 = excess[100..].iter().sum::<f64>() / 20.0;
@@ -318,14 +328,44 @@ mod tests {
         assert!(last < 0.6 * first, "first {first} last {last}");
     }
 
+    /// The same agent over 30 parameters (a refined trajectory's residuals): its first action
+    /// is the start, every action stays in the box, and it moves towards a bowl's minimum.
+    #[test]
+    fn sac_acts_in_thirty_dimensions_and_improves_on_a_bowl() {
+        let best: Vec<f64> = (0..30).map(|i| 0.5 * ((i as f64) * 0.7).sin()).collect();
+        let loss = |t: &[f64]| {
+            1.0 + t
+                .iter()
+                .zip(&best)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+        };
+        let mut sac = Sac::new(SacConfig::default(), &[0.0; 30], 5).unwrap();
+        let mut losses = Vec::new();
+        for k in 0..120 {
+            let t = sac.act().unwrap();
+            assert_eq!(t.len(), 30);
+            if k == 0 {
+                assert!(t.iter().all(|x| *x == 0.0), "the first action is the start");
+            }
+            assert!(t.iter().all(|x| x.abs() < 1.0 && x.is_finite()));
+            let l = loss(&t);
+            losses.push(l);
+            sac.observe(&t, l).unwrap();
+        }
+        let first: f64 = losses[1..21].iter().sum::<f64>() / 20.0;
+        let last: f64 = losses[100..].iter().sum::<f64>() / 20.0;
+        assert!(last < 0.8 * first, "first {first} last {last}");
+    }
+
     #[test]
     fn a_seed_fixes_the_run() {
         let run = || {
-            let mut sac = Sac::new(SacConfig::default(), [0.1; 5], 11).unwrap();
+            let mut sac = Sac::new(SacConfig::default(), &[0.1; 5], 11).unwrap();
             let mut out = Vec::new();
             for k in 0..12 {
                 let t = sac.act().unwrap();
-                sac.observe(t, 1.0 + k as f64 * 0.1 + t[0]).unwrap();
+                sac.observe(&t, 1.0 + k as f64 * 0.1 + t[0]).unwrap();
                 out.push(t);
             }
             out
