@@ -32,7 +32,7 @@ fn refinement_compares_the_adjoint_with_the_baselines_by_dimension_and_resumes()
     let first = run();
     let md = std::fs::read_to_string(dir.join("results/refinement.md")).unwrap();
     for dim in [6, 12] {
-        for m in ["line", "adam", "trust", "ray", "cmaes", "random"] {
+        for m in ["line", "adam", "trust", "ray", "cmaes", "random", "sac"] {
             assert!(
                 md.contains(&format!("\n| {dim} | {m} |")),
                 "{dim} {m}:\n{md}"
@@ -44,10 +44,10 @@ fn refinement_compares_the_adjoint_with_the_baselines_by_dimension_and_resumes()
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
-    // Per dimension and seed: adam's ⌈4/3.4⌉ = 2 gradient rollouts, 4 CMA-ES, 4 random and 4
-    // ray ones, and trust's and line's one gradient rollout each (3.4), after which a forward
-    // trial (1) would pass the budget of 4.
-    assert_eq!(rows.len(), 2 * 2 * (2 + 1 + 1 + 4 + 4 + 4));
+    // Per dimension and seed: adam's ⌈4/3.4⌉ = 2 gradient rollouts, 4 CMA-ES, 4 random, 4 ray
+    // and 4 SAC ones, and trust's and line's one gradient rollout each (3.4), after which a
+    // forward trial (1) would pass the budget of 4.
+    assert_eq!(rows.len(), 2 * 2 * (2 + 1 + 1 + 4 + 4 + 4 + 4));
     // Every method starts from the plain skill: adam's and random's first rollouts are the same
     // simulation, so the same loss to the bit.
     for seed in 0..2 {
@@ -64,6 +64,11 @@ fn refinement_compares_the_adjoint_with_the_baselines_by_dimension_and_resumes()
         assert_eq!(at("trust"), at("random"));
         assert_eq!(at("line"), at("random"));
         assert_eq!(at("ray"), at("random"));
+        assert_eq!(
+            at("sac"),
+            at("random"),
+            "SAC's first action is the plain skill"
+        );
     }
     let second = run();
     assert_eq!(
