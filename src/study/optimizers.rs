@@ -108,6 +108,9 @@ pub struct Row {
     pub p_vs: BTreeMap<String, Option<f64>>,
 }
 
+/// A method and a one-sided Wilcoxon p-value about it (`None`: every pair tied).
+pub type MethodP = (Method, Option<f64>);
+
 /// A task's result.
 #[derive(Clone, Debug, Serialize)]
 pub struct TaskResult {
@@ -143,7 +146,7 @@ impl TaskResult {
     /// The baseline of lowest mean dose error at equal compute, and for each gradient-informed
     /// method the one-sided Wilcoxon p that this baseline's dose error is smaller than the
     /// method's: the test of "no worse than the best baseline" (p < [`ALPHA`]: shown worse).
-    pub fn worse_than_best_baseline(&self) -> Option<(Method, Vec<(Method, Option<f64>)>)> {
+    pub fn worse_than_best_baseline(&self) -> Option<(Method, Vec<MethodP>)> {
         let ranked = self.ranked();
         let base = ranked.iter().find(|r| BASELINES.contains(&r.method))?;
         let ps = ranked
