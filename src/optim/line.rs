@@ -100,54 +100,28 @@ pub fn search(
             anyhow::Ok(p)
         };
     let closed = budget.closed.max(CLOSED);
-    if let (Some((x, fx)), Some((f0, _))) = (partner, known) {
-        if fx * f0 < 0.0 && x.len() == d {
-            // The segment w → x, at t ∈ [0, 1]: a bracket already.
-            let length = x
-                .iter()
-                .zip(&w)
-                .map(|(a, b)| (a - b).powi(2))
-                .sum::<f64>()
-                .sqrt();
-            let at = |t: f64| -> Vec<f64> {
-                w.iter()
-                    .zip(x)
-                    .map(|(wi, xi)| (wi + t * (xi - wi)).clamp(-1.0, 1.0))
-                    .collect()
-            };
-            let mut ends = Illinois {
-                a: 0.0,
-                fa: f0,
-                b: 1.0,
-                fb: fx,
-            };
-            while spent + 1.0 <= limit
-                && ends.fb != 0.0
-                && (ends.b - ends.a).abs() * length > closed
-            {
-                let t = ends.next();
-                let p = probe(&at(t), false, &mut spent, &mut best)?;
-                ends.update(t, p.indicator);
-            }
-            if !budget.restart || spent + 1.0 > limit {
-                return Ok(());
-            }
-            let (l, x, f) = best.clone().expect("the start is known");
-            w = x;
-            here = Some((f, l));
+    // A bracket known before any probe: the segment from w to the partner, as the axis x − w
+    // left unnormalised, so that [0, 1] spans it.
+    let mut segment: Option<(Vec<f64>, f64)> = match (partner, known) {
+        (Some((x, fx)), Some((f0, _))) if fx * f0 < 0.0 && x.len() == d => {
+            Some((x.iter().zip(&w).map(|(xi, wi)| xi - wi).collect(), fx))
         }
-    }
+        _ => None,
+    };
     loop {
         let gradient_fits = spent + budget.gradient_cost <= limit;
         let use_adjoint = adjoint && !stalled && (gradient_fits || !budget.restart);
-        let (g, f0, l0) = if use_adjoint {
+        let (g, f0, l0, given) = if let Some((g, fx)) = segment.take() {
+            let (f0, l0) = here.expect("a partner counts only with a known start");
+            (g, f0, l0, Some(fx))
+        } else if use_adjoint {
             // The first gradient runs whatever the budget; later ones only where they fit.
             if spent > 0.0 && !gradient_fits {
                 return Ok(());
             }
             let p = probe(&w, true, &mut spent, &mut best)?;
             here = Some((p.indicator, p.loss));
-            (p.grad.unwrap_or_default(), p.indicator, p.loss)
+            (p.grad.unwrap_or_default(), p.indicator, p.loss, None)
         } else {
             let (f0, l0) = match here {
                 Some(v) => v,
@@ -160,11 +134,19 @@ pub fn search(
                     (p.indicator, p.loss)
                 }
             };
-            ((0..d).map(|_| rng.normal()).collect::<Vec<f64>>(), f0, l0)
+            let g = (0..d).map(|_| rng.normal()).collect::<Vec<f64>>();
+            (g, f0, l0, None)
         };
         stalled = false;
-        let n = g.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if !(n > 0.0 && n.is_finite()) || (f0 == 0.0 && !budget.restart) {
+        let norm = g.iter().map(|x| x * x).sum::<f64>().sqrt();
+        // The axis's unit in the parameters' units: an axis is normalised (steps of
+        // LINE_STEPS are distances), the segment is not (its bracket [0, 1] spans it).
+        let (n, scale) = if given.is_some() {
+            (1.0, norm)
+        } else {
+            (norm, 1.0)
+        };
+        if given.is_none() && (!(n > 0.0 && n.is_finite()) || (f0 == 0.0 && !budget.restart)) {
             if budget.restart && spent + 1.0 <= limit {
                 // No direction from the adjoint here: a random axis next.
                 stalled = true;
@@ -178,26 +160,33 @@ pub fn search(
                 .map(|(wi, gi)| (wi + a * gi / n).clamp(-1.0, 1.0))
                 .collect()
         };
-        // Bracket: a step whose indicator has the other sign than at w.
-        let mut bracket = None;
+        // Bracket: the segment's far end, or a step whose indicator has the other sign than
+        // at w.
         let mut lower: Option<(f64, Vec<f64>, f64)> = None;
-        'steps: for a in LINE_STEPS {
-            for a in [a, -a] {
-                if spent + 1.0 > limit {
-                    return Ok(());
+        let bracket = match given {
+            Some(fx) => Some((1.0, fx)),
+            None => {
+                let mut bracket = None;
+                'steps: for a in LINE_STEPS {
+                    for a in [a, -a] {
+                        if spent + 1.0 > limit {
+                            return Ok(());
+                        }
+                        let x = at(a);
+                        let p = probe(&x, false, &mut spent, &mut best)?;
+                        let (f, l) = (p.indicator, p.loss);
+                        if l < l0 && lower.as_ref().is_none_or(|b| l < b.0) {
+                            lower = Some((l, x, f));
+                        }
+                        if f * f0 <= 0.0 {
+                            bracket = Some((a, f));
+                            break 'steps;
+                        }
+                    }
                 }
-                let x = at(a);
-                let p = probe(&x, false, &mut spent, &mut best)?;
-                let (f, l) = (p.indicator, p.loss);
-                if l < l0 && lower.as_ref().is_none_or(|b| l < b.0) {
-                    lower = Some((l, x, f));
-                }
-                if f * f0 <= 0.0 {
-                    bracket = Some((a, f));
-                    break 'steps;
-                }
+                bracket
             }
-        }
+        };
         let Some((b, fb)) = bracket else {
             match lower {
                 Some((l, x, f)) => {
@@ -220,7 +209,7 @@ pub fn search(
             b,
             fb,
         };
-        while spent + 1.0 <= limit && ends.fb != 0.0 && (ends.b - ends.a).abs() > closed {
+        while spent + 1.0 <= limit && ends.fb != 0.0 && (ends.b - ends.a).abs() * scale > closed {
             let x = ends.next();
             let p = probe(&at(x), false, &mut spent, &mut best)?;
             ends.update(x, p.indicator);
