@@ -272,6 +272,28 @@ impl Sac {
 mod tests {
     use super::*;
 
+    /// 120 episodes of `sac` on `loss`: the actions (each checked to lie inside the box) and
+    /// their losses.
+    fn episodes(sac: &mut Sac, loss: impl Fn(&[f64]) -> f64) -> (Vec<Vec<f64>>, Vec<f64>) {
+        (0..120)
+            .map(|_| {
+                let t = sac.act().unwrap();
+                assert!(t.iter().all(|x| x.abs() < 1.0 && x.is_finite()), "{t:?}");
+                let l = loss(&t);
+                sac.observe(&t, l).unwrap();
+                (t, l)
+            })
+            .unzip()
+    }
+
+    /// The mean of episodes 2–21 (after the start) and of the last 20.
+    fn first_and_last(v: &[f64]) -> (f64, f64) {
+        (
+            v[1..21].iter().sum::<f64>() / 20.0,
+            v[v.len() - 20..].iter().sum::<f64>() / 20.0,
+        )
+    }
+
     /// On a smooth bowl over Θ, a handful of SAC episodes move the policy towards the minimum:
     /// the mean loss of the last samples is below that of the first ones.
     #[test]
@@ -285,16 +307,8 @@ mod tests {
                 .sum::<f64>()
         };
         let mut sac = Sac::new(SacConfig::default(), &[-0.5, 0.5, -0.5, 0.5, 0.5], 3).unwrap();
-        let mut losses = Vec::new();
-        for _ in 0..120 {
-            let t = sac.act().unwrap();
-            assert!(t.iter().all(|x| x.abs() < 1.0 && x.is_finite()));
-            let l = loss(&t);
-            losses.push(l);
-            sac.observe(&t, l).unwrap();
-        }
-        let first: f64 = losses[1..21].iter().sum::<f64>() / 20.0;
-        let last: f64 = losses[100..].iter().sum::<f64>() / 20.0;
+        let (_, losses) = episodes(&mut sac, loss);
+        let (first, last) = first_and_last(&losses);
         assert!(last < 0.8 * first, "first {first} last {last}");
         assert!(sac.alpha().unwrap().is_finite());
     }
@@ -314,15 +328,9 @@ mod tests {
                         .sum::<f64>()
         };
         let mut sac = Sac::new(SacConfig::default(), &[-0.5, 0.5, -0.5, 0.5, 0.5], 7).unwrap();
-        let mut excess = Vec::new();
-        for _ in 0..120 {
-            let t = sac.act().unwrap();
-            let l = loss(&t);
-            excess.push(l - 440.0);
-            sac.observe(&t, l).unwrap();
-        }
-        let first: f64 = excess[1..21].iter().sum::<f64>() / 20.0;
-        let last: f64 = excess[100..].iter().sum::<f64>() / 20.0;
+        let (_, losses) = episodes(&mut sac, loss);
+        let excess: Vec<f64> = losses.iter().map(|l| l - 440.0).collect();
+        let (first, last) = first_and_last(&excess);
         let (alpha, mean, std) = sac.stats().unwrap();
         assert!(alpha.is_finite() && mean > 440.0 && std > 0.0);
         assert!(last < 0.6 * first, "first {first} last {last}");
@@ -341,20 +349,13 @@ mod tests {
                 .sum::<f64>()
         };
         let mut sac = Sac::new(SacConfig::default(), &[0.0; 30], 5).unwrap();
-        let mut losses = Vec::new();
-        for k in 0..120 {
-            let t = sac.act().unwrap();
-            assert_eq!(t.len(), 30);
-            if k == 0 {
-                assert!(t.iter().all(|x| *x == 0.0), "the first action is the start");
-            }
-            assert!(t.iter().all(|x| x.abs() < 1.0 && x.is_finite()));
-            let l = loss(&t);
-            losses.push(l);
-            sac.observe(&t, l).unwrap();
-        }
-        let first: f64 = losses[1..21].iter().sum::<f64>() / 20.0;
-        let last: f64 = losses[100..].iter().sum::<f64>() / 20.0;
+        let (actions, losses) = episodes(&mut sac, loss);
+        assert!(actions.iter().all(|t| t.len() == 30));
+        assert!(
+            actions[0].iter().all(|x| *x == 0.0),
+            "the first action is the start"
+        );
+        let (first, last) = first_and_last(&losses);
         assert!(last < 0.8 * first, "first {first} last {last}");
     }
 
