@@ -394,12 +394,7 @@ impl Runner<'_> {
         (0..s.seeds).into_par_iter().try_for_each(|k| {
             let start = lowest(&found, k).context("the global phase ran nothing")?;
             let f0 = start.outcome.indicator;
-            let other_side: Vec<Record> = found
-                .iter()
-                .filter(|r| r.outcome.indicator * f0 < 0.0)
-                .cloned()
-                .collect();
-            let partner = lowest(&other_side, k);
+            let partner = lowest(found.iter().filter(|r| r.outcome.indicator * f0 < 0.0), k);
             let mut rng = SplitMix64(method_seed(method, k));
             let mut batch = global;
             super::line::search(
@@ -506,9 +501,9 @@ struct GlobalPhase {
 }
 
 /// Seed `k`'s lowest-loss rollout of `found` (the first of equal losses, in order).
-fn lowest(found: &[Record], k: usize) -> Option<&Record> {
+fn lowest<'a>(found: impl IntoIterator<Item = &'a Record>, k: usize) -> Option<&'a Record> {
     found
-        .iter()
+        .into_iter()
         .filter(|r| r.seed == k)
         .fold(None::<&Record>, |b, r| match b {
             Some(b) if b.outcome.loss <= r.outcome.loss => Some(b),
