@@ -122,9 +122,10 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
         assert_ne!(g["grad"], c["grad"]);
     }
     // line and ray: the hybrid's global phase (the same three points and rollouts), then
-    // line's gradient rollout at its lowest-loss point (unless the phase both over- and
-    // under-delivered: then the segment between the two comes first, forward only), ray's
-    // forward rollouts only, all within 7 forward rollouts of compute.
+    // line's gradient rollout at its lowest-loss point, ray's forward rollouts only, all within
+    // 7 forward rollouts of compute. (Where the phase both over- and under-delivers, the segment
+    // between the two comes first: `optim::line`'s unit tests cover that; this scene's phase
+    // does not, which the test checks so that the gradient's place below holds.)
     let rollouts = |m: &str, seed: u64| -> Vec<serde_json::Value> {
         let mut v: Vec<serde_json::Value> = journal
             .lines()
@@ -146,12 +147,10 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
             assert_eq!(ray[i]["loss"], hybrid[i]["loss"]);
         }
         let f = |r: &serde_json::Value| r["indicator"].as_f64().unwrap();
-        let bracketed =
-            hybrid[..3].iter().any(|r| f(r) > 0.0) && hybrid[..3].iter().any(|r| f(r) < 0.0);
-        if bracketed {
-            assert!(line[3]["grad"].is_null(), "the segment first: {line:?}");
-            continue;
-        }
+        assert!(
+            !(hybrid[..3].iter().any(|r| f(r) > 0.0) && hybrid[..3].iter().any(|r| f(r) < 0.0)),
+            "this scene's global phase brackets the target: {hybrid:?}"
+        );
         // 3 + 3.4: no forward rollout fits after the gradient's.
         assert_eq!(line.len(), 4, "{line:?}");
         assert_eq!(
