@@ -5,6 +5,7 @@
 
 use powderlab::policy::dataset::{self, gauss_newton, Sample};
 use powderlab::policy::features::layout;
+use powderlab::policy::knob;
 use powderlab::policy::net::{train, usable, Policy, TrainConfig};
 use powderlab::policy::reinforce::{finetune, ReinforceConfig};
 use powderlab::scene::randomize::Draw;
@@ -82,6 +83,7 @@ fn synthetic(n: usize) -> Vec<Sample> {
                 start_loss: 0.02 * k as f64,
                 rollouts: 20.0,
                 particle_substeps: 1.25e7,
+                hindsight: k % 5 == 0,
             }
         })
         .collect()
@@ -244,6 +246,40 @@ fn randomised_scenes_are_drawn_reproducibly_and_move_the_spoon_with_the_source()
     assert_eq!(s.simulation.seed, a.packing_seed);
 }
 
+/// The labeller's search runs the shallowest and deepest scoops first and keeps every other
+/// trial inside them; each of its rollouts, relabelled with its own mass as the target, is
+/// solved exactly by its Θ when the relabelled scene is built and run afresh.
+#[test]
+fn the_knob_search_brackets_and_its_hindsight_labels_are_exact() {
+    let d = scratch("knob");
+    let scene = Scene::load(tiny_with(&d, RANDOMIZE)).unwrap();
+    let spec = dataset::spec_of(&scene).unwrap();
+    let draw = dataset::draw_scene(spec, &scene, 0, 1);
+    let (problem, _) = dataset::problem_of(&scene, &draw).unwrap();
+    let trace = knob::search(&problem, &draw, 4).unwrap();
+    assert!((2..=4).contains(&trace.len()), "{}", trace.len());
+    assert_eq!((trace[0].0, trace[1].0), (-1.0, 1.0));
+    assert!(trace[2..].iter().all(|(s, _)| s.abs() < 1.0));
+    // Every rollout qualifies under a range wide enough for any mass.
+    let wide = powderlab::scene::randomize::Randomization {
+        target_g: Some((0.0, 1e9)),
+        ..spec.clone()
+    };
+    let rollouts: Vec<_> = trace
+        .iter()
+        .map(|(s, o)| (knob::family(&problem, &draw, *s), o.clone()))
+        .collect();
+    let labels = dataset::hindsight(&wide, &problem, (1, 0), &draw, &rollouts);
+    assert_eq!(labels.len(), trace.len());
+    for (l, (_, o)) in labels.iter().zip(&trace) {
+        assert!(l.hindsight && l.draw.target_g == o.transported);
+        let (p, f) = dataset::problem_of(&scene, &l.draw).unwrap();
+        assert_eq!(f, l.features);
+        let again = p.evaluate(l.theta, false, true).unwrap();
+        assert_eq!(again.indicator, 0.0, "{} g", again.transported);
+    }
+}
+
 #[test]
 fn a_bad_range_is_refused_in_one_line_naming_the_field() {
     let d = scratch("bad");
@@ -317,12 +353,20 @@ fn the_commands_run_end_to_end_on_a_small_scene_and_resume() {
         "1",
     ];
     let out = powderlab(&ds);
-    assert!(out.contains("6 samples"), "{out}");
     let samples = dataset::read(&Path::new(dir).join("dataset.safetensors")).unwrap();
-    assert_eq!(samples.len(), 6);
+    let n = samples.len();
+    assert!(out.contains(&format!("{n} samples")), "{out}");
+    // Three scenes and a copy of each, searched; the hindsight samples are the rollouts that
+    // delivered a mass in the target's range, each the exact answer to it.
+    assert_eq!(samples.iter().filter(|x| !x.hindsight).count(), 6);
     assert!(samples
         .iter()
+        .filter(|x| !x.hindsight)
         .all(|x| x.loss.is_finite() && x.rollouts > 0.0));
+    assert!(samples
+        .iter()
+        .filter(|x| x.hindsight)
+        .all(|x| x.indicator == 0.0 && (1.0..=3.0).contains(&x.draw.target_g)));
     // A rerun finds every scene done and writes the same file.
     powderlab(&ds);
     assert_eq!(
@@ -342,28 +386,10 @@ fn the_commands_run_end_to_end_on_a_small_scene_and_resume() {
         "--max-label-error-g",
         "100",
     ]);
-    assert!(out.contains("fitted on 6 of 6 samples"), "{out}");
-    // The labels searched again from the first fit's Θ, and the fit to them.
-    let out = powderlab(&["policy", "anchor", s, "--dir", dir, "--budget", "2"]);
-    assert!(out.contains("3 scenes"), "{out}");
-    let anchored = dataset::read(&Path::new(dir).join("anchored.safetensors")).unwrap();
-    assert_eq!(anchored.len(), 3);
-    assert!(anchored.iter().all(|a| a.copy == 0 && a.rollouts >= 4.0));
-    let out = powderlab(&[
-        "policy",
-        "train",
-        "--dir",
-        dir,
-        "--data",
-        "anchored.safetensors",
-        "--epochs",
-        "50",
-        "--hidden",
-        "8",
-        "--max-label-error-g",
-        "100",
-    ]);
-    assert!(out.contains("fitted on 3 of 3 samples"), "{out}");
+    assert!(
+        out.contains(&format!("fitted on {n} of {n} samples")),
+        "{out}"
+    );
     let out = powderlab(&[
         "policy",
         "finetune",
@@ -379,7 +405,14 @@ fn the_commands_run_end_to_end_on_a_small_scene_and_resume() {
     let out = powderlab(&[
         "policy", "eval", s, "--dir", dir, "--scenes", "1", "--budget", "2",
     ]);
-    for m in ["policy", "finetuned", "random", "optimiser", "warm"] {
+    for m in [
+        "policy",
+        "finetuned",
+        "random",
+        "optimiser",
+        "repacked",
+        "warm",
+    ] {
         assert!(out.contains(&format!("| {m} |")), "{m}: {out}");
     }
     let written = d.join("applied.ron");

@@ -101,8 +101,8 @@ def _write_atomic(path: Path, text: str) -> None:
 def map_dataset(
     scene: Scene,
     dir: Union[str, Path],
-    scenes: int = 36,
-    budget: int = 20,
+    scenes: int = 40,
+    budget: int = 10,
     augment: int = 2,
     augment_steps: int = 1,
     perturb: float = 0.1,

@@ -20,14 +20,11 @@ pub struct Args {
 
 #[derive(clap::Subcommand)]
 enum Sub {
-    /// Draw randomised scenes from the scene's `randomize` ranges, optimise Θ on each
-    /// (CMA-ES), add perturbed copies refined by Gauss–Newton steps along the adjoint
-    /// gradient, and write DIR/dataset.safetensors. Resumes after a kill.
+    /// Draw randomised scenes from the scene's `randomize` ranges, label each by a root search
+    /// of the dose along the scoop depth, add perturbed copies refined by Gauss–Newton steps
+    /// along the adjoint gradient and every rollout's own mass as a hindsight label, and write
+    /// DIR/dataset.safetensors. Resumes after a kill.
     Dataset(DatasetArgs),
-    /// Search each optimised scene of DIR/dataset.safetensors again from the Θ that
-    /// DIR/policy.safetensors gives it, so that the labels lie in one basin; writes DIR/anchored.safetensors (train on it
-    /// with `policy train --data anchored.safetensors`). Resumes after a kill.
-    Anchor(AnchorArgs),
     /// Fit the MLP from features to Θ on DIR/dataset.safetensors (candle, full-batch AdamW);
     /// writes DIR/policy.safetensors and DIR/train.csv.
     Train(TrainArgs),
@@ -41,17 +38,6 @@ enum Sub {
     /// Print the policy's Θ for a scene (its own values, not a random draw); --write writes
     /// the scene with that Θ.
     Apply(ApplyArgs),
-}
-
-#[derive(clap::Args)]
-struct AnchorArgs {
-    /// The scene the dataset was made from.
-    scene: PathBuf,
-    #[arg(long, default_value = "runs/policy")]
-    dir: PathBuf,
-    /// Forward rollouts per scene.
-    #[arg(long, default_value_t = 6)]
-    budget: usize,
 }
 
 #[derive(clap::Args)]
@@ -126,11 +112,11 @@ struct DatasetArgs {
     /// The policy's folder.
     #[arg(long, default_value = "runs/policy")]
     dir: PathBuf,
-    /// Randomised scenes to optimise.
-    #[arg(long, default_value_t = 36)]
+    /// Randomised scenes to label.
+    #[arg(long, default_value_t = 40)]
     scenes: usize,
-    /// Forward rollouts CMA-ES spends on each scene.
-    #[arg(long, default_value_t = 20)]
+    /// At most this many forward rollouts for the root search on each scene.
+    #[arg(long, default_value_t = 10)]
     budget: usize,
     /// Perturbed copies of each scene (seed B's augmentation).
     #[arg(long, default_value_t = 2)]
@@ -149,7 +135,6 @@ struct DatasetArgs {
 pub fn run(a: Args) -> Result<()> {
     match a.command {
         Sub::Dataset(d) => dataset_cmd(d),
-        Sub::Anchor(a) => anchor_cmd(a),
         Sub::Train(t) => train_cmd(t),
         Sub::Finetune(f) => finetune_cmd(f),
         Sub::Eval(e) => eval_cmd(e),
@@ -178,7 +163,7 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
         + d.augment as f64
             * (d.augment_steps as f64 * (1.0 + powderlab::optim::report::BACKWARD_COST) + 1.0);
     eprintln!(
-        "{}: {} randomised scenes, about {:.0} forward rollouts each ({} by CMA-ES, {} perturbed copies of {} gradient steps); {} threads",
+        "{}: {} randomised scenes, at most {:.0} forward rollouts each ({} by the root search of the dose, {} perturbed copies of {} gradient steps); {} threads",
         d.scene.display(),
         d.scenes,
         per_scene,
@@ -194,56 +179,23 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
     dataset::write(&path, &samples)?;
     let errs: Vec<f64> = samples
         .iter()
-        .filter(|s| s.copy == 0)
+        .filter(|s| s.copy == 0 && !s.hindsight)
         .map(|s| s.indicator.abs())
         .collect();
     let aug: Vec<f64> = samples
         .iter()
-        .filter(|s| s.copy > 0)
+        .filter(|s| s.copy > 0 && !s.hindsight)
         .map(|s| s.indicator.abs())
         .collect();
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
     println!(
-        "{}: {} samples; optimised scenes' dose error {:.3} g on average, perturbed copies' {:.3} g",
+        "{}: {} samples ({} hindsight); labelled scenes' dose error {:.3} g on average, perturbed copies' {:.3} g",
         path.display(),
         samples.len(),
+        samples.iter().filter(|s| s.hindsight).count(),
         mean(&errs),
         mean(&aug)
     );
-    Ok(())
-}
-
-fn anchor_cmd(a: AnchorArgs) -> Result<()> {
-    let scene = Scene::load(&a.scene)?;
-    dataset::spec_of(&scene)?;
-    let samples = dataset::read(&a.dir.join("dataset.safetensors"))?;
-    let policy = Policy::load(&a.dir.join("policy.safetensors"), &layout())?;
-    let cfg = powderlab::policy::anchor::AnchorConfig {
-        budget: a.budget,
-        ..Default::default()
-    };
-    let n = samples.iter().filter(|s| s.copy == 0).count();
-    let pb = super::bar(n as u64, false);
-    let anchored = powderlab::policy::anchor::anchor(
-        &scene,
-        &policy,
-        &samples,
-        &cfg,
-        &a.dir.join(format!("anchor-{}", policy.fingerprint()?)),
-        &|k| pb.set_position(k as u64),
-    )?;
-    pb.finish_and_clear();
-    let path = a.dir.join("anchored.safetensors");
-    dataset::write(&path, &anchored)?;
-    let kept = anchored
-        .iter()
-        .filter(|x| {
-            samples
-                .iter()
-                .any(|y| y.scene == x.scene && y.copy == 0 && y.theta != x.theta)
-        })
-        .count();
-    println!("{}: {n} scenes, {kept} with a new label", path.display());
     Ok(())
 }
 
@@ -351,7 +303,14 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
     pb.finish_and_clear();
     let mut md =
         String::from("| method | dose error (g), mean | median | rollouts |\n|---|---|---|---|\n");
-    for m in ["policy", "finetuned", "random", "optimiser", "warm"] {
+    for m in [
+        "policy",
+        "finetuned",
+        "random",
+        "optimiser",
+        "repacked",
+        "warm",
+    ] {
         let err = eval::errors(&rows, m);
         if err.is_empty() {
             continue;

@@ -649,8 +649,9 @@ fn planning_cmd(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// `powderlab study policy`: seed B's Sim2Real step on the randomised dosing scene (36
-/// optimised scenes with 2 perturbed copies each, the fit, the fine-tune, 20 held-out scenes).
+/// `powderlab study policy`: seed B's Sim2Real step on the randomised dosing scene (40
+/// labelled scenes with 2 perturbed copies each and their hindsight samples, the fit, the
+/// fine-tune, 20 held-out scenes).
 fn policy_cmd(a: Args) -> Result<()> {
     use powderlab::policy::{dataset, eval, net, reinforce};
     use powderlab::study::policy;
@@ -663,15 +664,14 @@ fn policy_cmd(a: Args) -> Result<()> {
     let settings = policy::Settings {
         dataset: dataset::Config {
             scene_hash: powderlab::optim::fnv1a(&scene.source),
-            scenes: 36,
-            budget: 20,
+            scenes: 40,
+            budget: 10,
             augment: 2,
             augment_steps: 1,
             perturb: 0.1,
             seed: 0,
         },
         train: net::TrainConfig::default(),
-        anchor: powderlab::policy::anchor::AnchorConfig::default(),
         finetune: reinforce::ReinforceConfig::default(),
         eval: eval::EvalConfig {
             scenes: 20,
@@ -697,12 +697,7 @@ fn policy_cmd(a: Args) -> Result<()> {
         &powderlab::study::optimizers::machine(),
     );
     powderlab::util::create_output_dir(&a.results, "--results")?;
-    policy::figure(
-        &a.results.join("policy.svg"),
-        &o.first_curve,
-        &o.curve,
-        &o.iterations,
-    )?;
+    policy::figure(&a.results.join("policy.svg"), &o.curve, &o.iterations)?;
     powderlab::util::write_atomic(&a.results.join("policy.md"), md.as_bytes())?;
     print_page(
         &a,

@@ -3,19 +3,22 @@
 //!
 //! 1. **Scene k** is drawn from the scene's `randomize` ranges with its own generator
 //!    ([`draw_scene`]), so scene k is the same whatever the count.
-//! 2. **Θ\*** is the lowest-loss rollout of CMA-ES ([`optimise`]) from the scene's own Θ with
-//!    the given budget of forward rollouts. CMA-ES is the lowest-error optimiser at equal
-//!    compute on this task (docs/results/optimisation.md); no gradient-informed method beats it.
+//! 2. **Θ\*** is the lowest-loss rollout of the root search of the dose along the scene's
+//!    family of skills ([`super::knob`]), with the given budget of forward rollouts: one knob,
+//!    the scoop depth, so that similar scenes get similar labels.
 //! 3. **Augmentation:** the scene perturbed ([`Randomization::perturb`]), then a few
-//!    warm-started steps from Θ\* along the adjoint gradient of the dosing loss. Each step is a
-//!    Gauss–Newton step on the relative dose error `r = (M − m*)/m*` (`L = r²`):
-//!    `ΔΘ = −2L ∇L/|∇L|²`, at most [`AUGMENT_STEP`] long. The label is the lowest-loss Θ
-//!    visited, Θ\* itself included.
+//!    warm-started steps from Θ\* along the adjoint gradient of the dosing loss, projected on
+//!    the knob. Each step is a Gauss–Newton step on the relative dose error
+//!    `r = (M − m*)/m*` (`L = r²`): `ΔΘ = −2L ∇L/|∇L|²`, at most [`AUGMENT_STEP`] long. The
+//!    label is the lowest-loss Θ visited, Θ\* itself included.
+//! 4. **Hindsight:** every rollout of 2 and 3 that delivers a mass M within the target's range
+//!    is also kept as the label of its scene with target M, exact and free ([`hindsight`]).
 //!
 //! Each scene's samples are written to `scene-K.json` when it is done, so a killed run resumes
 //! at the scene it was on; [`write`] gathers them into one safetensors file.
 
 use super::features::{features, layout};
+use super::knob;
 use crate::optim::cma::{reflect, run_sequential};
 use crate::optim::problem::{Outcome, Problem};
 use crate::optim::report::BACKWARD_COST;
@@ -74,6 +77,10 @@ pub struct Sample {
     pub rollouts: f64,
     /// The same in simulated particle-substeps.
     pub particle_substeps: f64,
+    /// A rollout's own mass taken as the target ([`hindsight`]): exact, and free (its compute
+    /// is its search's).
+    #[serde(default)]
+    pub hindsight: bool,
 }
 
 /// Scene `k` of the stream `seed`.
@@ -110,8 +117,8 @@ pub struct Search {
     pub best: Outcome,
     pub rollouts: f64,
     pub particle_substeps: f64,
-    /// Every rollout's Θ and loss, in order.
-    pub trace: Vec<([f64; 5], f64)>,
+    /// Every rollout's Θ and outcome, in order.
+    pub trace: Vec<([f64; 5], Outcome)>,
 }
 
 /// CMA-ES on `problem` from `x0` with step size `sigma`, `budget` forward rollouts, sampling
@@ -130,7 +137,7 @@ pub fn optimise(
         let theta: [f64; 5] = std::array::from_fn(|i| reflect(x[i]));
         let o = problem.evaluate(theta, false, true)?;
         spent += cost(&o);
-        trace.push((theta, o.loss));
+        trace.push((theta, o.clone()));
         let l = o.loss;
         if best.as_ref().is_none_or(|(_, b)| o.loss < b.loss) {
             best = Some((theta, o));
@@ -147,8 +154,8 @@ pub fn optimise(
     })
 }
 
-/// Gauss–Newton steps on the dose from `theta` (see the module's notes): `steps` gradient
-/// rollouts and a last forward one.
+/// Gauss–Newton steps on the dose from `theta` along the knob (see the module's notes): `steps`
+/// gradient rollouts and a last forward one.
 pub fn refine(problem: &Problem, theta: [f64; 5], steps: usize) -> anyhow::Result<Search> {
     let mut t = theta;
     let mut best: Option<([f64; 5], Outcome)> = None;
@@ -162,8 +169,12 @@ pub fn refine(problem: &Problem, theta: [f64; 5], steps: usize) -> anyhow::Resul
             1.0
         };
         spent += cost(&o);
-        trace.push((t, o.loss));
-        let next = o.grad.map(|g| gauss_newton(t, o.loss, g));
+        trace.push((t, o.clone()));
+        let next = o.grad.map(|g| {
+            let mut along = [0.0; 5];
+            along[knob::KNOB] = g[knob::KNOB];
+            gauss_newton(t, o.loss, along)
+        });
         if best.as_ref().is_none_or(|(_, b)| o.loss < b.loss) {
             best = Some((t, o));
         }
@@ -206,48 +217,88 @@ pub fn problem_of(base: &Scene, d: &Draw) -> anyhow::Result<(Problem, Vec<f64>)>
     Ok((problem, f))
 }
 
-/// Scene `k`'s samples: the optimised scene and its perturbed copies. This is the unit of work
-/// a machine runs; `powderlab.distributed.map_dataset` runs it as Ray tasks.
+/// The hindsight samples of `rollouts` on scene `d` (see the module's notes): each rollout
+/// whose delivered mass lies in the target's range, with that mass as the target.
+pub fn hindsight(
+    spec: &Randomization,
+    problem: &Problem,
+    (scene, copy): (usize, usize),
+    d: &Draw,
+    rollouts: &[([f64; 5], Outcome)],
+) -> Vec<Sample> {
+    let (lo, hi) = spec.target_g.unwrap_or((d.target_g, d.target_g));
+    let x = problem.initial_positions();
+    rollouts
+        .iter()
+        .filter(|(_, o)| o.transported >= lo && o.transported <= hi)
+        .map(|(theta, o)| {
+            let draw = Draw {
+                target_g: o.transported,
+                ..d.clone()
+            };
+            Sample {
+                scene,
+                copy,
+                features: features(spec, &problem.scene, &draw, &x, 0.0),
+                draw,
+                theta: *theta,
+                loss: 0.0,
+                indicator: 0.0,
+                start_loss: 0.0,
+                rollouts: 0.0,
+                particle_substeps: 0.0,
+                hindsight: true,
+            }
+        })
+        .collect()
+}
+
+/// Scene `k`'s samples: the optimised scene, its perturbed copies and their hindsight samples.
+/// This is the unit of work a machine runs; `powderlab.distributed.map_dataset` runs it as Ray
+/// tasks.
 pub fn scene_samples(base: &Scene, cfg: &Config, k: usize) -> anyhow::Result<Vec<Sample>> {
     let spec = spec_of(base)?;
     let d = draw_scene(spec, base, cfg.seed, k);
     let (problem, f) = problem_of(base, &d)?;
-    let s = optimise(
-        &problem,
-        problem.scene_theta(),
-        SIGMA_FULL,
-        cfg.budget,
-        k as u64,
-    )?;
+    let trace = knob::search(&problem, &d, cfg.budget)?;
+    let (s_star, best) = knob::best(&trace).context("the search ran no rollout")?;
+    let rollouts: Vec<([f64; 5], Outcome)> = trace
+        .iter()
+        .map(|(s, o)| (knob::family(&problem, &d, *s), o.clone()))
+        .collect();
     let mut out = vec![Sample {
         scene: k,
         copy: 0,
         draw: d.clone(),
         features: f,
-        theta: s.theta,
-        loss: s.best.loss,
-        indicator: s.best.indicator,
-        start_loss: s.trace[0].1,
-        rollouts: s.rollouts,
-        particle_substeps: s.particle_substeps,
+        theta: knob::family(&problem, &d, *s_star),
+        loss: best.loss,
+        indicator: best.indicator,
+        start_loss: trace[0].1.loss,
+        rollouts: trace.len() as f64,
+        particle_substeps: trace.iter().map(|(_, o)| cost(o)).sum(),
+        hindsight: false,
     }];
+    out.extend(hindsight(spec, &problem, (k, 0), &d, &rollouts));
     let mut rng = SplitMix64(cfg.seed ^ (0xA11C_E5ED << 16) ^ k as u64);
     for copy in 1..=cfg.augment {
         let p = spec.perturb(&d, cfg.perturb, &mut rng);
         let (pp, pf) = problem_of(base, &p)?;
-        let r = refine(&pp, s.theta, cfg.augment_steps)?;
+        let r = refine(&pp, knob::family(&pp, &p, *s_star), cfg.augment_steps)?;
         out.push(Sample {
             scene: k,
             copy,
-            draw: p,
+            draw: p.clone(),
             features: pf,
             theta: r.theta,
             loss: r.best.loss,
             indicator: r.best.indicator,
-            start_loss: r.trace[0].1,
+            start_loss: r.trace[0].1.loss,
             rollouts: r.rollouts,
             particle_substeps: r.particle_substeps,
+            hindsight: false,
         });
+        out.extend(hindsight(spec, &pp, (k, copy), &p, &r.trace));
     }
     Ok(out)
 }
@@ -313,7 +364,7 @@ pub fn generate(
 }
 
 /// The dataset file's format tag.
-pub const FORMAT: &str = "powderlab-policy-dataset/1";
+pub const FORMAT: &str = "powderlab-policy-dataset/2";
 
 fn matrix(rows: &[Vec<f64>], width: usize) -> anyhow::Result<candle_core::Tensor> {
     let flat: Vec<f64> = rows.iter().flatten().copied().collect();
@@ -327,7 +378,7 @@ fn matrix(rows: &[Vec<f64>], width: usize) -> anyhow::Result<candle_core::Tensor
 /// Writes `samples` to a safetensors file (atomically): `features [n, F]`, `theta [n, 5]`,
 /// `params [n, 7]` (the draws), `packing_seed [n, 2]` (its two 32-bit halves, which an f64
 /// holds exactly), and `loss`, `indicator`, `start_loss`, `rollouts`, `particle_substeps`,
-/// `scene` and `copy` as `[n, 1]`; the feature and parameter names go in the metadata.
+/// `scene`, `copy` and `hindsight` (0 or 1) as `[n, 1]`; the feature and parameter names go in the metadata.
 pub fn write(path: &Path, samples: &[Sample]) -> anyhow::Result<()> {
     let names = layout();
     let f = samples.first().map_or(names.len(), |s| s.features.len());
@@ -388,6 +439,10 @@ pub fn write(path: &Path, samples: &[Sample]) -> anyhow::Result<()> {
     t.push(("particle_substeps".into(), col(&|s| s.particle_substeps)?));
     t.push(("scene".into(), col(&|s| s.scene as f64)?));
     t.push(("copy".into(), col(&|s| s.copy as f64)?));
+    t.push((
+        "hindsight".into(),
+        col(&|s| f64::from(u8::from(s.hindsight)))?,
+    ));
     let meta = HashMap::from([
         ("format".to_string(), FORMAT.to_string()),
         ("features".to_string(), names.join(",")),
@@ -433,6 +488,7 @@ pub fn read(path: &Path) -> anyhow::Result<Vec<Sample>> {
     let c = |name: &str| -> anyhow::Result<Vec<f64>> {
         Ok(get(name)?.into_iter().map(|r| r[0]).collect())
     };
+    let hs = c("hindsight")?;
     let (loss, ind, sl, ro, pss, sc, cp) = (
         c("loss")?,
         c("indicator")?,
@@ -463,6 +519,7 @@ pub fn read(path: &Path) -> anyhow::Result<Vec<Sample>> {
             start_loss: sl[i],
             rollouts: ro[i],
             particle_substeps: pss[i],
+            hindsight: hs[i] != 0.0,
         })
         .collect())
 }

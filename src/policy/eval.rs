@@ -2,18 +2,25 @@
 //!
 //! Held-out scene j is drawn from the stream `seed + HELD_OUT_STREAM`, which the dataset never
 //! uses. On each:
-//! - **optimiser:** CMA-ES with the full budget from the scene's Θ, as the dataset's Θ\* was
-//!   found;
+//! - **optimiser:** `line` on all five parameters ([`line_optimise`]), the lowest-error method
+//!   on precise dosing at equal compute (docs/results/optimisation.md), with the full budget:
+//!   half of it on the scene's Θ and Sobol points, the rest on the root search of the dose;
+//! - **repacked:** the optimiser's Θ on the same scene with another packing seed, one rollout.
+//!   No policy sees the grains' packing, so this is the error a policy that knew the optimiser's
+//!   answer exactly would still make: the floor of any one-rollout policy;
 //! - **random:** one rollout of a Θ drawn uniformly from the box;
 //! - **a policy** (the distilled one, the fine-tuned one): one rollout of its Θ;
-//! - **warm:** CMA-ES from the distilled policy's Θ with a quarter of the budget (rounded up)
-//!   and a smaller first step, [`SIGMA_WARM`].
+//! - **warm:** `line`'s root search from the distilled policy's Θ with a quarter of the budget
+//!   (rounded up), no global phase.
 //!
 //! Each trial is kept in `dir/scene-J/NAME.json` (a policy's under its [`Policy::fingerprint`]), so
 //! a killed run resumes and a new policy reruns only its own trials.
 
-use super::dataset::{cost, draw_scene, optimise, problem_of, spec_of, SIGMA_FULL};
+use super::dataset::{cost, draw_scene, problem_of, spec_of, Search};
 use super::net::Policy;
+use crate::optim::line::{self, Budget, Probe, SKILL_REPEATABILITY};
+use crate::optim::problem::{Outcome, Problem};
+use crate::optim::report::BACKWARD_COST;
 use crate::scene::randomize::Draw;
 use crate::scene::Scene;
 use crate::util::SplitMix64;
@@ -24,9 +31,11 @@ use std::path::Path;
 
 /// Added to the dataset's seed to draw the held-out scenes.
 pub const HELD_OUT_STREAM: u64 = 0x4E1D_0075;
-/// CMA-ES's first step from the policy's Θ: a tenth of the box's width, so that the search
-/// stays near the policy's answer.
-pub const SIGMA_WARM: f64 = 0.2;
+/// The share of the optimiser's budget spent on its global phase, as `optimize` spends it
+/// (`HybridConfig::global`).
+pub const GLOBAL_SHARE: f64 = 0.5;
+/// Added to the packing seed for the `repacked` trial.
+pub const REPACK: u64 = 0x9ACC_1465;
 
 /// One method on one held-out scene.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -99,17 +108,94 @@ fn single(
     })
 }
 
-/// A search's trial.
-fn searched(
-    problem: &crate::optim::problem::Problem,
-    method: &str,
+/// `line` on `problem` ([`crate::optim::line`]), as `optimize` runs it on one seed: forward
+/// rollouts at `x0` and `global − 1` Sobol points (seeded by `seed`); from the lowest-loss one,
+/// the root search of the dose (first across the segment to the lowest-loss rollout on the
+/// target's other side, if any), with restarts, until `budget` forward rollouts' compute (a
+/// backward pass counted at its cost) is spent. With `global` = 0 the search starts at `x0`.
+pub fn line_optimise(
+    problem: &Problem,
     x0: [f64; 5],
-    sigma: f64,
+    global: usize,
     budget: usize,
     seed: u64,
+) -> anyhow::Result<Search> {
+    let mut trace: Vec<([f64; 5], Outcome)> = Vec::new();
+    let run = |theta: [f64; 5],
+               grad: bool,
+               trace: &mut Vec<([f64; 5], Outcome)>|
+     -> anyhow::Result<Probe> {
+        let o = problem.evaluate(theta, grad, true)?;
+        let p = Probe {
+            indicator: o.indicator,
+            loss: o.loss,
+            grad: o.grad.map(|g| g.to_vec()),
+        };
+        trace.push((theta, o));
+        Ok(p)
+    };
+    let mut points = vec![x0];
+    points.extend(crate::optim::sobol_thetas(
+        global.saturating_sub(1),
+        seed as u32,
+    ));
+    for t in points.iter().take(global) {
+        run(*t, false, &mut trace)?;
+    }
+    let lowest = |it: &mut dyn Iterator<Item = &([f64; 5], Outcome)>| {
+        it.min_by(|a, b| a.1.loss.total_cmp(&b.1.loss)).cloned()
+    };
+    let (start, known, partner) = match lowest(&mut trace.iter()) {
+        None => (x0, None, None),
+        Some((t, o)) => {
+            let f0 = o.indicator;
+            let partner = lowest(&mut trace.iter().filter(|(_, p)| p.indicator * f0 < 0.0))
+                .map(|(x, p)| (x.to_vec(), p.indicator));
+            (t, Some((f0, o.loss)), partner)
+        }
+    };
+    let mut rng = SplitMix64(seed);
+    line::search(
+        &start,
+        known,
+        partner.as_ref().map(|(x, f)| (&x[..], *f)),
+        Budget {
+            forward_rollouts: budget.saturating_sub(global) as f64,
+            gradient_cost: 1.0 + BACKWARD_COST,
+            restart: true,
+            closed: SKILL_REPEATABILITY,
+        },
+        true,
+        &mut rng,
+        &mut |w, grad| run(std::array::from_fn(|i| w[i]), grad, &mut trace),
+    )?;
+    let (theta, best) = lowest(&mut trace.iter()).context("line ran no rollout")?;
+    let rollouts = trace
+        .iter()
+        .map(|(_, o)| {
+            if o.grad.is_some() {
+                1.0 + BACKWARD_COST
+            } else {
+                1.0
+            }
+        })
+        .sum();
+    Ok(Search {
+        theta,
+        best,
+        rollouts,
+        particle_substeps: trace.iter().map(|(_, o)| cost(o)).sum(),
+        trace,
+    })
+}
+
+/// A search's trial.
+fn searched(
+    method: &str,
+    search: impl FnOnce() -> anyhow::Result<Search>,
 ) -> anyhow::Result<Trial> {
     let t0 = std::time::Instant::now();
-    let s = optimise(problem, x0, sigma, budget, seed)?;
+    let s = search()?;
     Ok(Trial {
         method: method.into(),
         theta: s.theta,
@@ -156,21 +242,36 @@ pub fn run(
             let (problem, f) = problem_of(base, &d)?;
             let sd = dir.join(format!("scene-{j}"));
             std::fs::create_dir_all(&sd)?;
-            let mut trials = vec![
-                super::file::kept(
-                    &sd.join("optimiser.json"),
-                    |_| true,
-                    || {
-                        searched(
+            let global = (GLOBAL_SHARE * cfg.budget as f64).floor() as usize;
+            let optimiser = super::file::kept(
+                &sd.join("optimiser.json"),
+                |_| true,
+                || {
+                    searched("optimiser", || {
+                        line_optimise(
                             &problem,
-                            "optimiser",
                             problem.scene_theta(),
-                            SIGMA_FULL,
+                            global.max(1),
                             cfg.budget,
                             1_000_000 + j as u64,
                         )
-                    },
-                )?,
+                    })
+                },
+            )?;
+            let repacked = super::file::kept(
+                &sd.join("repacked.json"),
+                |_| true,
+                || {
+                    let other = Draw {
+                        packing_seed: d.packing_seed.wrapping_add(REPACK),
+                        ..d.clone()
+                    };
+                    single(&problem_of(base, &other)?.0, "repacked", optimiser.theta)
+                },
+            )?;
+            let mut trials = vec![
+                optimiser,
+                repacked,
                 super::file::kept(
                     &sd.join("random.json"),
                     |_| true,
@@ -196,14 +297,15 @@ pub fn run(
                         &sd.join(format!("warm-{}.json", c.fingerprint)),
                         |_| true,
                         || {
-                            searched(
-                                &problem,
-                                "warm",
-                                theta,
-                                SIGMA_WARM,
-                                cfg.warm_budget(),
-                                2_000_000 + j as u64,
-                            )
+                            searched("warm", || {
+                                line_optimise(
+                                    &problem,
+                                    theta,
+                                    0,
+                                    cfg.warm_budget(),
+                                    2_000_000 + j as u64,
+                                )
+                            })
                         },
                     )?);
                 }

@@ -1,14 +1,13 @@
 //! `study policy`: the whole of seed B's Sim2Real step on the randomised dosing scene, and its
 //! page (docs/results/policy.md, policy.svg).
 //!
-//! The steps: the dataset (`policy::dataset`); the held-out baselines (the per-scene optimiser
-//! and a random Θ); the supervised fit; the REINFORCE fine-tune; both policies and the warm
-//! start on the held-out scenes. Every step keeps what it computed under `dir`, so a killed
+//! The steps: the dataset (`policy::dataset`); the held-out baselines (the per-scene optimiser,
+//! its answer repacked, and a random Θ); the supervised fit; the REINFORCE fine-tune; both
+//! policies and the warm start on the held-out scenes. Every step keeps what it computed under `dir`, so a killed
 //! study resumes; the fit is deterministic and seconds long, so it is simply redone.
 
 use super::optimizers::{p_text, wilcoxon_less};
 use crate::optim::rmsprop::median;
-use crate::policy::anchor::{self, AnchorConfig};
 use crate::policy::dataset::{self, Sample};
 use crate::policy::eval::{self, Candidate, EvalConfig, SceneEval};
 use crate::policy::net::{self, Policy, TrainConfig, TrainPoint};
@@ -25,7 +24,6 @@ use std::path::Path;
 pub struct Settings {
     pub dataset: dataset::Config,
     pub train: TrainConfig,
-    pub anchor: AnchorConfig,
     pub finetune: ReinforceConfig,
     pub eval: EvalConfig,
 }
@@ -33,10 +31,7 @@ pub struct Settings {
 /// What the study found.
 pub struct Outcome {
     pub samples: Vec<Sample>,
-    /// The optimised scenes with their labels searched again from the first fit's Θ.
-    pub anchored: Vec<Sample>,
-    /// The first fit's curve (on the dataset's labels) and the policy's (on the anchored ones).
-    pub first_curve: Vec<TrainPoint>,
+    /// The fit's curve.
     pub curve: Vec<TrainPoint>,
     pub iterations: Vec<Iteration>,
     /// Particle-substeps the fine-tune's episodes simulated.
@@ -62,18 +57,7 @@ pub fn run(
         progress("held-out optimiser and random Θ", k, m)
     })?;
     progress("fit", 0, 1);
-    let (first, first_curve) = net::train(&samples, &s.train)?;
-    first.save(&dir.join("policy-dataset-labels.safetensors"))?;
-    let n_opt = samples.iter().filter(|x| x.copy == 0).count();
-    let anchored = anchor::anchor(
-        base,
-        &first,
-        &samples,
-        &s.anchor,
-        &dir.join(format!("anchor-{}", first.fingerprint()?)),
-        &|k| progress("anchoring the labels", k, n_opt),
-    )?;
-    let (policy, curve) = net::train(&anchored, &s.train)?;
+    let (policy, curve) = net::train(&samples, &s.train)?;
     let distilled = dir.join("policy.safetensors");
     policy.save(&distilled)?;
     let fp = policy.fingerprint()?;
@@ -100,19 +84,12 @@ pub fn run(
             policy: &tuned,
             fingerprint: tuned.fingerprint()?,
         },
-        Candidate {
-            name: "first",
-            policy: &first,
-            fingerprint: first.fingerprint()?,
-        },
     ];
     let rows = eval::run(base, &s.eval, &dir.join("eval"), &candidates, &|k| {
         progress("held-out policies", k, m)
     })?;
     Ok(Outcome {
         samples,
-        anchored,
-        first_curve,
         curve,
         iterations,
         finetune_cost,
@@ -164,27 +141,39 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         features::HEIGHT_CELLS,
     );
     // The dataset.
-    let opt: Vec<&Sample> = o.samples.iter().filter(|x| x.copy == 0).collect();
-    let aug: Vec<&Sample> = o.samples.iter().filter(|x| x.copy > 0).collect();
+    let opt: Vec<&Sample> = o
+        .samples
+        .iter()
+        .filter(|x| x.copy == 0 && !x.hindsight)
+        .collect();
+    let aug: Vec<&Sample> = o
+        .samples
+        .iter()
+        .filter(|x| x.copy > 0 && !x.hindsight)
+        .collect();
+    let hind = o.samples.iter().filter(|x| x.hindsight).count();
     let improved = aug.iter().filter(|x| x.loss < x.start_loss).count();
     let opt_err: Vec<f64> = opt.iter().map(|x| x.indicator.abs()).collect();
     let aug_err: Vec<f64> = aug.iter().map(|x| x.indicator.abs()).collect();
+    let reach = opt.iter().filter(|x| x.indicator > 0.1).count();
     let d = &s.dataset;
+    let total: f64 = o.samples.iter().map(|x| x.particle_substeps).sum();
     let _ = writeln!(md, "## The dataset\n");
     let _ = writeln!(
         md,
-        "- **{} randomised scenes**, each optimised by CMA-ES with {} forward rollouts from the scene's Θ (CMA-ES has the lowest dose error at equal compute on this task, [optimisation.md](optimisation.md); no gradient-informed method beats it). Θ\\*'s dose error: {:.3} ± {:.3} g (median {:.3} g).",
-        opt.len(), d.budget, mean(&opt_err), std(&opt_err), median(&opt_err)
+        "- **{} randomised scenes**, each labelled by a root search of the dose along one family of skills: scoop to a depth, carry the spoon over the target cup, empty it (scoop angle, lift and pour angle fixed, transport = the cup distance; `policy::knob`). The mass scooped rises with the depth, so similar scenes get similar labels; an optimiser over all five parameters lands in different modes on similar scenes, and a network fitted to those learns their mean. At most {} forward rollouts per scene: the shallowest and deepest scoops, then Illinois regula falsi on the depth. Θ\\*'s dose error: {:.3} ± {:.3} g (median {:.3} g); on {} scenes the deepest scoop holds less than the target (more than 0.1 g short).",
+        opt.len(), d.budget, mean(&opt_err), std(&opt_err), median(&opt_err), reach
     );
     let _ = writeln!(
         md,
-        "- **{} perturbed copies** (seed B's augmentation: {} per scene, each range moved by a normal step of {} of its width, a new packing seed), each refined from its scene's Θ\\* by {} Gauss–Newton step(s) along the adjoint gradient of the dosing loss. The step lowered the loss on {} of {} copies; the copies' labels have a dose error of {:.3} ± {:.3} g (median {:.3} g). A copy costs {:.1} forward rollouts against a scene's {}.",
+        "- **{} perturbed copies** (seed B's augmentation: {} per scene, each range moved by a normal step of {} of its width, a new packing seed), each refined from its scene's Θ\\* by {} Gauss–Newton step(s) along the adjoint gradient of the dosing loss, projected on the depth. The step lowered the loss on {} of {} copies; the copies' labels have a dose error of {:.3} ± {:.3} g (median {:.3} g). A copy costs {:.1} forward rollouts.",
         aug.len(), d.augment, d.perturb, d.augment_steps, improved, aug.len(), mean(&aug_err), std(&aug_err), median(&aug_err),
-        mean(&aug.iter().map(|x| x.rollouts).collect::<Vec<_>>()), d.budget
+        mean(&aug.iter().map(|x| x.rollouts).collect::<Vec<_>>())
     );
     let _ = writeln!(
         md,
-        "- Stored as `dataset.safetensors` (features, Θ, the drawn parameters, loss, indicator, compute; the layout in its metadata).\n"
+        "- **{hind} hindsight samples:** every rollout of those searches that delivered a mass M within the target's range, kept as the exact label of its scene with target M (the target does not change the physics), at no extra rollout.\n- The dataset cost {:.2} G particle-substeps. Stored as `dataset.safetensors` (features, Θ, the drawn parameters, loss, indicator, compute, hindsight; the layout in its metadata).\n",
+        total / 1e9
     );
     // The fit and the fine-tune.
     let t = &s.train;
@@ -195,38 +184,17 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         .map(|p| p.val_mse)
         .fold(f64::INFINITY, f64::min);
     let _ = writeln!(md, "## The policy\n");
-    let used = |set: &[Sample]| net::usable(set, t).len();
-    let first_val = o
-        .first_curve
-        .iter()
-        .map(|p| p.val_mse)
-        .fold(f64::INFINITY, f64::min);
-    let a = &s.anchor;
-    let moved = o
-        .anchored
-        .iter()
-        .filter(|x| opt.iter().any(|y| y.scene == x.scene && y.theta != x.theta))
-        .count();
-    let anch_err: Vec<f64> = o.anchored.iter().map(|x| x.indicator.abs()).collect();
+    let used = net::usable(&o.samples, t).len();
     let _ = writeln!(
         md,
-        "- **The network:** an MLP {}→{}→{}→5 (candle), inputs standardised by the training set, fitted by full-batch AdamW (lr {}, weight decay {}) for {} epochs on the mean squared error in Θ; every {}th scene (with its copies) is held out to choose the epoch. Samples whose Θ misses by more than {} g are not learnt.",
-        features::layout().len(), t.hidden, t.hidden, t.lr, t.weight_decay, t.epochs, t.val_every, t.max_label_error_g
+        "- **The network:** an MLP {}→{}→{}→5 (candle), inputs standardised by the training set, fitted by full-batch AdamW (lr {}, weight decay {}) for {} epochs on the mean squared error in Θ; every {}th scene (with its copies and hindsight samples) is held out to choose the epoch. Samples whose Θ misses by more than {} g are not learnt: {} of {} are used.",
+        features::layout().len(), t.hidden, t.hidden, t.lr, t.weight_decay, t.epochs, t.val_every, t.max_label_error_g, used, o.samples.len()
     );
     let _ = writeln!(
         md,
-        "- **First fit, on the dataset's labels** ({} of {} samples usable): lowest validation MSE {:.4}. The labels lie in different modes of the landscape (similar scenes, Θ\\* far apart), so this fit learns little beyond their mean.",
-        used(&o.samples), o.samples.len(), first_val
-    );
-    let _ = writeln!(
-        md,
-        "- **Anchored labels:** each optimised scene searched again by CMA-ES from the first fit's own Θ ({} rollouts, first step σ = {}), the new label kept when it doses within {} g: {} of {} scenes took one; their dose error is {:.3} ± {:.3} g (median {:.3} g).",
-        a.budget, a.sigma, a.max_error_g, moved, o.anchored.len(), mean(&anch_err), std(&anch_err), median(&anch_err)
-    );
-    let _ = writeln!(
-        md,
-        "- **The distilled policy,** fitted to the anchored labels ({} of {} usable): training MSE at the end {:.4}, lowest validation MSE {:.4}.",
-        used(&o.anchored), o.anchored.len(), last.map_or(f64::NAN, |p| p.train_mse), best_val
+        "- **The distilled policy:** training MSE at the end {:.5}, lowest validation MSE {:.5}.",
+        last.map_or(f64::NAN, |p| p.train_mse),
+        best_val
     );
     let f = &s.finetune;
     let first = o.iterations.first().map_or(f64::NAN, |i| i.mean_reward);
@@ -244,17 +212,17 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let _ = writeln!(md, "## On {} held-out scenes\n", rows.len());
     let _ = writeln!(
         md,
-        "Scenes drawn from a stream the dataset never used. The per-scene optimiser is CMA-ES with its full budget of {} rollouts from the scene's Θ; the warm start is CMA-ES from the distilled policy's Θ with a quarter of it ({} rollouts, first step σ = {}). A method's dose error is |target − delivered| of its rollout of lowest loss. Compute is in simulated particle-substeps (a rollout's steps × substeps × particles; scenes differ in their particles and substeps).\n",
-        e.budget, e.warm_budget(), eval::SIGMA_WARM
+        "Scenes drawn from a stream the dataset never used. The per-scene optimiser is `line` on all five parameters with its full budget of {} rollouts' compute (half on the scene's Θ and Sobol points, half on the root search of the dose along the adjoint's axis, a backward pass at its cost; the lowest-error method on precise dosing, [optimisation.md](optimisation.md)); *repacked* is its Θ run again on the same scene with another packing seed, the error that no one-rollout policy, blind to the grains' packing, can go below; the warm start is `line`'s root search from the distilled policy's Θ with a quarter of the budget ({}). A method's dose error is |target − delivered| of its rollout of lowest loss. Compute is in simulated particle-substeps (a rollout's steps × substeps × particles; scenes differ in their particles and substeps).\n",
+        e.budget, e.warm_budget()
     );
     let _ = writeln!(md, "| method | dose error (g), mean ± std | median | within 0.1 g | rollouts | G particle-substeps | compute / optimiser's |");
     let _ = writeln!(md, "|---|---|---|---|---|---|---|");
     let names = [
-        ("first", "first fit (dataset's labels), one rollout"),
         ("policy", "policy (distilled), one rollout"),
         ("finetuned", "policy (fine-tuned), one rollout"),
         ("random", "random Θ, one rollout"),
         ("optimiser", "per-scene optimiser, full budget"),
+        ("repacked", "optimiser's Θ, repacked, one rollout"),
         ("warm", "optimiser from the policy, ¼ budget"),
     ];
     for (key, label) in names {
@@ -302,6 +270,12 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         "- **Within 2× the optimiser's dose error at 1/30 of its compute:** {:.2}× its error ({:.3} g against {:.3} g) at {:.3} of its compute (1/{:.0}) — {}.",
         ratio, mean(&pol), mean(&optm), compute, 1.0 / compute, verdict(ratio <= 2.0 && compute <= 1.0 / 30.0 + 1e-9)
     );
+    let rep = eval::errors(rows, "repacked");
+    let _ = writeln!(
+        md,
+        "- The floor of any one-rollout policy: the optimiser's own Θ on the scene repacked misses by {:.3} g ({:.2}× the optimiser's error; p = {} that the policy does worse than it).",
+        mean(&rep), mean(&rep) / mean(&optm), p_text(wilcoxon_less(&rep, &pol))
+    );
     let _ = writeln!(
         md,
         "- **The fine-tune improves on the distilled policy:** {:.3} g against {:.3} g, p = {} — {}.",
@@ -317,12 +291,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
 
 /// The training curve (train and validation MSE against epoch) and the fine-tune's mean reward
 /// per iteration, side by side.
-pub fn figure(
-    path: &Path,
-    first: &[TrainPoint],
-    curve: &[TrainPoint],
-    its: &[Iteration],
-) -> anyhow::Result<()> {
+pub fn figure(path: &Path, curve: &[TrainPoint], its: &[Iteration]) -> anyhow::Result<()> {
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (1100, 420)).into_drawing_area();
@@ -330,17 +299,13 @@ pub fn figure(
         let (l, r) = root.split_horizontally(550);
         let ys: Vec<f64> = curve
             .iter()
-            .chain(first)
             .flat_map(|p| [p.train_mse, p.val_mse])
             .filter(|v| v.is_finite() && *v > 0.0)
             .collect();
         let (lo, hi) = ys
             .iter()
             .fold((f64::MAX, 0.0f64), |(a, b), v| (a.min(*v), b.max(*v)));
-        let xmax = curve
-            .last()
-            .map_or(1, |p| p.epoch)
-            .max(first.last().map_or(1, |p| p.epoch)) as f64;
+        let xmax = curve.last().map_or(1, |p| p.epoch) as f64;
         let mut c = ChartBuilder::on(&l)
             .caption("distillation: MSE in Θ", ("sans-serif", 16))
             .margin(10)
@@ -358,7 +323,7 @@ pub fn figure(
                 BLUE,
                 (|p: &TrainPoint| p.train_mse) as fn(&TrainPoint) -> f64,
             ),
-            ("validation (anchored labels)", RED, |p: &TrainPoint| {
+            ("validation (held-out scenes)", RED, |p: &TrainPoint| {
                 p.val_mse
             }),
         ] {
@@ -374,16 +339,6 @@ pub fn figure(
                 PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
             });
         }
-        let grey = RGBColor(150, 150, 150);
-        c.draw_series(LineSeries::new(
-            first
-                .iter()
-                .filter(|p| p.val_mse.is_finite())
-                .map(|p| (p.epoch as f64, p.val_mse)),
-            grey.stroke_width(2),
-        ))?
-        .label("validation, first fit (dataset's labels)")
-        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], grey.stroke_width(2)));
         c.configure_series_labels()
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
