@@ -6,7 +6,7 @@
 use powderlab::policy::dataset::{self, gauss_newton, Sample};
 use powderlab::policy::features::layout;
 use powderlab::policy::knob;
-use powderlab::policy::net::{train, usable, Policy, TrainConfig};
+use powderlab::policy::net::{select, train, usable, Policy, TrainConfig};
 use powderlab::policy::reinforce::{finetune, ReinforceConfig};
 use powderlab::scene::randomize::Draw;
 use powderlab::scene::Scene;
@@ -137,6 +137,28 @@ fn the_mlp_fits_a_small_smooth_map() {
     let got = policy.act(&s.features).unwrap();
     let err: f64 = (0..5).map(|i| (got[i] - s.theta[i]).powi(2)).sum::<f64>() / 5.0;
     assert!(err < 0.2 * var, "one sample's error {err}");
+}
+
+/// The width is chosen on the training set's own validation split: the chosen network is the
+/// width of lowest validation error, and it is as good on that split as its table says.
+#[test]
+fn the_width_is_chosen_by_the_validation_split() {
+    let samples = synthetic(120);
+    let cfg = TrainConfig {
+        epochs: 300,
+        ..TrainConfig::default()
+    };
+    let (policy, curve, table) = select(&samples, &cfg, &[2, 32]).unwrap();
+    assert_eq!(table.len(), 2);
+    let (h, v) = *table.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
+    assert_eq!(policy.hidden, h);
+    let best = curve
+        .iter()
+        .map(|c| c.val_mse)
+        .fold(f64::INFINITY, f64::min);
+    assert_eq!(best, v);
+    // Two units cannot carry a five-output map of two features that a 32-wide net fits.
+    assert_eq!(h, 32, "{table:?}");
 }
 
 #[test]

@@ -332,3 +332,31 @@ pub fn train(samples: &[Sample], cfg: &TrainConfig) -> anyhow::Result<(Policy, V
     }
     Ok((policy, curve))
 }
+
+/// The hidden widths [`select`] chooses among.
+pub const WIDTHS: [usize; 4] = [8, 16, 32, 64];
+
+/// One fit per width in `widths` ([`train`] with `cfg.hidden` replaced); keeps the one of lowest
+/// validation error on the training set's own split (no held-out scene is seen), the first on
+/// a tie. Returns it, its curve, and each width's lowest validation MSE.
+pub fn select(
+    samples: &[Sample],
+    cfg: &TrainConfig,
+    widths: &[usize],
+) -> anyhow::Result<(Policy, Vec<TrainPoint>, Vec<(usize, f64)>)> {
+    let mut best: Option<(f64, Policy, Vec<TrainPoint>)> = None;
+    let mut table = Vec::new();
+    for &hidden in widths {
+        let (p, curve) = train(samples, &TrainConfig { hidden, ..*cfg })?;
+        let v = curve
+            .iter()
+            .map(|c| c.val_mse)
+            .fold(f64::INFINITY, f64::min);
+        table.push((hidden, v));
+        if best.as_ref().is_none_or(|(b, _, _)| v < *b) {
+            best = Some((v, p, curve));
+        }
+    }
+    let (_, p, curve) = best.context("no width to choose from")?;
+    Ok((p, curve, table))
+}

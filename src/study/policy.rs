@@ -31,8 +31,10 @@ pub struct Settings {
 /// What the study found.
 pub struct Outcome {
     pub samples: Vec<Sample>,
-    /// The fit's curve.
+    /// The chosen fit's curve.
     pub curve: Vec<TrainPoint>,
+    /// Each hidden width tried and its lowest validation MSE.
+    pub widths: Vec<(usize, f64)>,
     pub iterations: Vec<Iteration>,
     /// Particle-substeps the fine-tune's episodes simulated.
     pub finetune_cost: f64,
@@ -57,7 +59,7 @@ pub fn run(
         progress("held-out optimiser and random Θ", k, m)
     })?;
     progress("fit", 0, 1);
-    let (policy, curve) = net::train(&samples, &s.train)?;
+    let (policy, curve, widths) = net::select(&samples, &s.train, &net::WIDTHS)?;
     let distilled = dir.join("policy.safetensors");
     policy.save(&distilled)?;
     let fp = policy.fingerprint()?;
@@ -91,6 +93,7 @@ pub fn run(
     Ok(Outcome {
         samples,
         curve,
+        widths,
         iterations,
         finetune_cost,
         rows,
@@ -187,8 +190,22 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let used = net::usable(&o.samples, t).len();
     let _ = writeln!(
         md,
-        "- **The network:** an MLP {}→{}→{}→5 (candle), inputs standardised by the training set, fitted by full-batch AdamW (lr {}, weight decay {}) for {} epochs on the mean squared error in Θ; every {}th scene (with its copies and hindsight samples) is held out to choose the epoch. Samples whose Θ misses by more than {} g are not learnt: {} of {} are used.",
-        features::layout().len(), t.hidden, t.hidden, t.lr, t.weight_decay, t.epochs, t.val_every, t.max_label_error_g, used, o.samples.len()
+        "- **The network:** an MLP {}→h→h→5 (candle), inputs standardised by the training set, fitted by full-batch AdamW (lr {}, weight decay {}) for {} epochs on the mean squared error in Θ; every {}th scene (with its copies and hindsight samples) is held out to choose the epoch and the width h. Samples whose Θ misses by more than {} g are not learnt: {} of {} are used.",
+        features::layout().len(), t.lr, t.weight_decay, t.epochs, t.val_every, t.max_label_error_g, used, o.samples.len()
+    );
+    let table: Vec<String> = o
+        .widths
+        .iter()
+        .map(|(h, v)| format!("h = {h}: {v:.5}"))
+        .collect();
+    let _ = writeln!(
+        md,
+        "- **The width,** by the lowest validation MSE of each: {}. The chosen one is {} wide.",
+        table.join(", "),
+        o.widths
+            .iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(0, |w| w.0)
     );
     let _ = writeln!(
         md,
