@@ -7,7 +7,7 @@
 //!   half of it on the scene's Θ and Sobol points, the rest on the root search of the dose;
 //! - **repacked:** the optimiser's Θ on the same scene with another packing seed, one rollout.
 //!   No policy sees the grains' packing, so this is the error a policy that knew the optimiser's
-//!   answer exactly would still make: the floor of any one-rollout policy;
+//!   answer exactly would still make: what the packing alone costs a one-rollout answer;
 //! - **random:** one rollout of a Θ drawn uniformly from the box;
 //! - **a policy** (the distilled one, the fine-tuned one): one rollout of its Θ;
 //! - **warm:** `line`'s root search from the distilled policy's Θ with a quarter of the budget

@@ -120,7 +120,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         md,
         "# A skill policy over randomised scenes (seed B's Sim2Real step)\n"
     );
-    let _ = writeln!(md, "Regenerate: `{command}` (about two hours on this machine from scratch, about half of it the dataset; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
+    let _ = writeln!(md, "Regenerate: `{command}` (about an hour on this machine from scratch: 23 min for the dataset, 27 for the held-out optimiser; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
     let _ = writeln!(md, "Machine: {machine}.\n");
     let r = scene.randomize.as_ref();
     let range = |v: Option<(f64, f64)>, scale: f64, unit: &str| {
@@ -229,7 +229,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let _ = writeln!(md, "## On {} held-out scenes\n", rows.len());
     let _ = writeln!(
         md,
-        "Scenes drawn from a stream the dataset never used. The per-scene optimiser is `line` on all five parameters with its full budget of {} rollouts' compute (half on the scene's Θ and Sobol points, half on the root search of the dose along the adjoint's axis, a backward pass at its cost; the lowest-error method on precise dosing, [optimisation.md](optimisation.md)); *repacked* is its Θ run again on the same scene with another packing seed, the error that no one-rollout policy, blind to the grains' packing, can go below; the warm start is `line`'s root search from the distilled policy's Θ with a quarter of the budget ({}). A method's dose error is |target − delivered| of its rollout of lowest loss. Compute is in simulated particle-substeps (a rollout's steps × substeps × particles; scenes differ in their particles and substeps).\n",
+        "Scenes drawn from a stream the dataset never used. The per-scene optimiser is `line` on all five parameters with its full budget of {} rollouts' compute (half on the scene's Θ and Sobol points, half on the root search of the dose along the adjoint's axis, a backward pass at its cost; the lowest-error method on precise dosing, [optimisation.md](optimisation.md)); *repacked* is its Θ run again on the same scene with another packing seed: the error of a policy that knew the optimiser's answer exactly but, like every policy here, not the grains' packing; the warm start is `line`'s root search from the distilled policy's Θ with a quarter of the budget ({}). A method's dose error is |target − delivered| of its rollout of lowest loss. Compute is in simulated particle-substeps (a rollout's steps × substeps × particles; scenes differ in their particles and substeps).\n",
         e.budget, e.warm_budget()
     );
     let _ = writeln!(md, "| method | dose error (g), mean ± std | median | within 0.1 g | rollouts | G particle-substeps | compute / optimiser's |");
@@ -290,7 +290,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let rep = eval::errors(rows, "repacked");
     let _ = writeln!(
         md,
-        "- The floor of any one-rollout policy: the optimiser's own Θ on the scene repacked misses by {:.3} g ({:.2}× the optimiser's error; p = {} that the policy does worse than it).",
+        "- What the packing alone costs a one-rollout answer: the optimiser's own Θ on the scene repacked misses by {:.3} g, {:.2}× the optimiser's error, so a policy blind to the grains cannot be expected within 2× (p = {} that the policy does worse than this reference).",
         mean(&rep), mean(&rep) / mean(&optm), p_text(wilcoxon_less(&rep, &pol))
     );
     let _ = writeln!(
@@ -340,7 +340,7 @@ pub fn figure(path: &Path, curve: &[TrainPoint], its: &[Iteration]) -> anyhow::R
                 BLUE,
                 (|p: &TrainPoint| p.train_mse) as fn(&TrainPoint) -> f64,
             ),
-            ("validation (held-out scenes)", RED, |p: &TrainPoint| {
+            ("validation (every 5th training scene)", RED, |p: &TrainPoint| {
                 p.val_mse
             }),
         ] {
