@@ -28,7 +28,7 @@ enum Sub {
     /// Fit the MLP from features to Θ on DIR/dataset.safetensors (candle, full-batch AdamW);
     /// writes DIR/policy.safetensors and DIR/train.csv.
     Train(TrainArgs),
-    /// Fine-tune DIR/policy.safetensors with REINFORCE on the dataset's scenes (reward −L);
+    /// Fine-tune DIR/policy.safetensors with REINFORCE on freshly drawn scenes (reward −L);
     /// writes DIR/finetuned.safetensors and DIR/finetune.csv. Resumes after a kill.
     Finetune(FinetuneArgs),
     /// Compare the policy (and the fine-tuned one, if there is one) with a random Θ, the
@@ -233,7 +233,6 @@ fn train_cmd(t: TrainArgs) -> Result<()> {
 fn finetune_cmd(f: FinetuneArgs) -> Result<()> {
     let scene = Scene::load(&f.scene)?;
     dataset::spec_of(&scene)?;
-    let samples = dataset::read(&f.dir.join("dataset.safetensors"))?;
     let distilled = f.dir.join("policy.safetensors");
     let policy = Policy::load(&distilled, &layout())?;
     let cfg = ReinforceConfig {
@@ -244,12 +243,13 @@ fn finetune_cmd(f: FinetuneArgs) -> Result<()> {
         seed: 0,
     };
     let fp = policy.fingerprint()?;
+    let contexts = tune::fresh_contexts(&scene, 0, (f.iterations * f.batch / 2).max(1))?;
     let pb = super::bar(f.iterations as u64, false);
     let mut csv = String::from("iteration,mean_reward\n");
     let (_, spent) = tune::finetune_scenes(
         &scene,
         &policy,
-        &samples,
+        &contexts,
         &cfg,
         &f.dir.join(format!("finetune-{fp}")),
         &mut |it| {

@@ -333,6 +333,9 @@ pub fn train(samples: &[Sample], cfg: &TrainConfig) -> anyhow::Result<(Policy, V
     Ok((policy, curve))
 }
 
+/// Each width [`select`] tried and its lowest validation MSE.
+pub type Widths = Vec<(usize, f64)>;
+
 /// The hidden widths [`select`] chooses among.
 pub const WIDTHS: [usize; 4] = [8, 16, 32, 64];
 
@@ -343,7 +346,7 @@ pub fn select(
     samples: &[Sample],
     cfg: &TrainConfig,
     widths: &[usize],
-) -> anyhow::Result<(Policy, Vec<TrainPoint>, Vec<(usize, f64)>)> {
+) -> anyhow::Result<(Policy, Vec<TrainPoint>, Widths)> {
     let mut best: Option<(f64, Policy, Vec<TrainPoint>)> = None;
     let mut table = Vec::new();
     for &hidden in widths {

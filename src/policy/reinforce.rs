@@ -1,11 +1,15 @@
 //! The fine-tune: REINFORCE (Williams 1992) with a baseline, seed B's last step.
 //!
-//! The policy is a Gaussian of fixed spread σ around the network's Θ. Each iteration draws a
-//! batch of contexts (scenes), samples `a = μ(f) + σε` for each, runs it (clamped into the box)
-//! and gets its reward `R`. The baseline of each sample is the mean reward of the *other*
-//! samples of its batch (leave-one-out, so the estimate stays unbiased), and the advantages are
-//! divided by the batch's reward spread. One AdamW step descends
-//! `−mean(A · log N(a; μ(f), σ²))`.
+//! The policy is a Gaussian of fixed spread σ around the network's Θ. Each iteration draws
+//! half a batch of contexts (scenes) and, for each, a mirrored pair of episodes
+//! `a± = μ(f) ± σε` (clamped into the box when run), with rewards `R±`. Each episode's baseline
+//! is its partner's reward, `A± = ±(R₊ − R₋)/2`: the scenes of a batch differ in how hard they
+//! are far more than two actions on one scene differ, so a baseline taken across scenes (the
+//! batch mean) buries the action's effect under the scene's. Mirrored sampling keeps the
+//! estimate unbiased: summed over a pair, `A₊∇log p(a₊) + A₋∇log p(a₋) = (R₊ − R₋) ε/σ`, the
+//! central-difference estimate of the gradient of the Gaussian-smoothed reward (seed B's eq. 6;
+//! Salimans et al. 2017). The advantages are divided by their spread over the batch. One
+//! AdamW step descends `−mean(A · log N(a; μ(f), σ²))`.
 //!
 //! `reward(iteration, slot, context, Θ)` is the caller's: a rollout's −L, or a toy's. A caller
 //! that keeps each (iteration, slot)'s reward can replay a killed run exactly, since the draws
@@ -22,7 +26,7 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ReinforceConfig {
     pub iterations: usize,
-    /// Episodes (rollouts) per iteration.
+    /// Episodes (rollouts) per iteration: `batch / 2` scenes, a mirrored pair on each.
     pub batch: usize,
     /// The Gaussian's standard deviation in Θ.
     pub sigma: f64,
@@ -62,8 +66,9 @@ pub fn finetune(
 ) -> anyhow::Result<Vec<Iteration>> {
     anyhow::ensure!(!contexts.is_empty(), "no contexts to fine-tune on");
     anyhow::ensure!(
-        cfg.batch >= 2,
-        "a batch of at least 2 (the baseline is the others' mean)"
+        cfg.batch >= 2 && cfg.batch.is_multiple_of(2),
+        "an even batch of at least 2 (the episodes come in mirrored pairs), not {}",
+        cfg.batch
     );
     anyhow::ensure!(cfg.sigma > 0.0, "sigma must be positive");
     let mut opt = AdamW::new(
@@ -77,17 +82,21 @@ pub fn finetune(
     let mut rng = SplitMix64(cfg.seed);
     let mut out = Vec::new();
     for it in 0..cfg.iterations {
-        let picks: Vec<usize> = (0..cfg.batch)
+        let picks: Vec<usize> = (0..cfg.batch / 2)
             .map(|_| (rng.next_u64() % contexts.len() as u64) as usize)
+            .flat_map(|c| [c, c])
             .collect();
         let rows: Vec<Vec<f64>> = picks.iter().map(|&c| contexts[c].clone()).collect();
         let x = policy.inputs(&rows)?;
         let mu = policy.forward(&x)?;
         let mu_v = mu.to_vec2::<f64>()?;
-        let actions: Vec<[f64; 5]> = mu_v
-            .iter()
-            .map(|m| std::array::from_fn(|d| m[d] + cfg.sigma * rng.normal()))
-            .collect();
+        let mut actions: Vec<[f64; 5]> = Vec::with_capacity(cfg.batch);
+        for pair in mu_v.chunks(2) {
+            let eps: [f64; 5] = std::array::from_fn(|_| rng.normal());
+            let m = &pair[0];
+            actions.push(std::array::from_fn(|d| m[d] + cfg.sigma * eps[d]));
+            actions.push(std::array::from_fn(|d| m[d] - cfg.sigma * eps[d]));
+        }
         let rewards: Vec<f64> = actions
             .par_iter()
             .enumerate()
@@ -119,17 +128,19 @@ pub fn finetune(
     Ok(out)
 }
 
-/// `R − b` with the leave-one-out baseline `b`, divided by the rewards' spread (left alone when
-/// they are all equal).
+/// The mirrored pairs' advantages `±(R₊ − R₋)/2` (`r` in pairs, `+` first), divided by their
+/// spread over the batch (left alone when every pair ties).
 pub fn advantages(r: &[f64]) -> Vec<f64> {
-    let n = r.len() as f64;
-    let sum: f64 = r.iter().sum();
-    let mean = sum / n;
-    let sd = (r.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let a: Vec<f64> = r
+        .chunks(2)
+        .flat_map(|p| {
+            let d = 0.5 * (p[0] - p[1]);
+            [d, -d]
+        })
+        .collect();
+    let sd = (a.iter().map(|v| v * v).sum::<f64>() / a.len().max(1) as f64).sqrt();
     let scale = if sd > 0.0 { sd } else { 1.0 };
-    r.iter()
-        .map(|v| (v - (sum - v) / (n - 1.0)) / scale)
-        .collect()
+    a.iter().map(|v| v / scale).collect()
 }
 
 #[cfg(test)]
@@ -137,10 +148,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn leave_one_out_advantages_sum_to_zero_and_order_the_rewards() {
-        let a = advantages(&[1.0, 2.0, 4.0]);
-        assert!(a.iter().sum::<f64>().abs() < 1e-12);
-        assert!(a[0] < a[1] && a[1] < a[2]);
+    fn a_pair_is_its_own_baseline() {
+        // The second scene is far harder than the first; only the difference within a pair
+        // counts, so the better action of each pair gets the same positive advantage.
+        let a = advantages(&[1.0, 0.0, -10.0, -11.0]);
+        assert_eq!(a, vec![1.0, -1.0, 1.0, -1.0]);
         assert_eq!(advantages(&[3.0, 3.0]), vec![0.0, 0.0]);
     }
 }

@@ -65,10 +65,12 @@ pub fn run(
     let fp = policy.fingerprint()?;
     let tuned = Policy::load(&distilled, &features::layout())?;
     let iters = s.finetune.iterations;
+    let contexts =
+        tune::fresh_contexts(base, s.dataset.seed, (iters * s.finetune.batch / 2).max(1))?;
     let (iterations, finetune_cost) = tune::finetune_scenes(
         base,
         &tuned,
-        &samples,
+        &contexts,
         &s.finetune,
         &dir.join(format!("finetune-{fp}")),
         &mut |it| progress("fine-tune", it.iteration + 1, iters),
@@ -218,7 +220,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let final_ = o.iterations.last().map_or(f64::NAN, |i| i.mean_reward);
     let _ = writeln!(
         md,
-        "- **Fine-tuned:** REINFORCE from the distilled network, a Gaussian of σ = {} around its Θ, a leave-one-out batch baseline, reward −L (the dosing loss), {} iterations of {} episodes on the training scenes (AdamW, lr {}): {} rollouts, {:.2} G particle-substeps. The batch's mean reward went from {:.4} (first) to {:.4} (last); the batches draw different scenes, so the held-out test below is what decides.\n",
+        "- **Fine-tuned:** REINFORCE from the distilled network, a Gaussian of σ = {} around its Θ, episodes in mirrored pairs on one scene, each the other's baseline (seed B's smoothed gradient), reward −L (the dosing loss), {} iterations of {} episodes on freshly drawn scenes, neither the dataset's nor the held-out ones (AdamW, lr {}): {} rollouts, {:.2} G particle-substeps. The batch's mean reward went from {:.4} (first) to {:.4} (last); the batches draw different scenes, so the held-out test below is what decides.\n",
         f.sigma, f.iterations, f.batch, f.lr, f.iterations * f.batch, o.finetune_cost / 1e9, first, final_
     );
     let _ = writeln!(md, "![training and fine-tuning curves](policy.svg)\n");
@@ -340,9 +342,11 @@ pub fn figure(path: &Path, curve: &[TrainPoint], its: &[Iteration]) -> anyhow::R
                 BLUE,
                 (|p: &TrainPoint| p.train_mse) as fn(&TrainPoint) -> f64,
             ),
-            ("validation (every 5th training scene)", RED, |p: &TrainPoint| {
-                p.val_mse
-            }),
+            (
+                "validation (every 5th training scene)",
+                RED,
+                |p: &TrainPoint| p.val_mse,
+            ),
         ] {
             c.draw_series(LineSeries::new(
                 curve
