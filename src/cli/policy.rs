@@ -303,14 +303,7 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
     pb.finish_and_clear();
     let mut md =
         String::from("| method | dose error (g), mean | median | rollouts |\n|---|---|---|---|\n");
-    for m in [
-        "policy",
-        "finetuned",
-        "random",
-        "optimiser",
-        "repacked",
-        "warm",
-    ] {
+    for m in eval::METHODS {
         let err = eval::errors(&rows, m);
         if err.is_empty() {
             continue;

@@ -19,7 +19,6 @@
 
 use super::features::{features, layout};
 use super::knob;
-use crate::optim::cma::{reflect, run_sequential};
 use crate::optim::problem::{Outcome, Problem};
 use crate::optim::report::BACKWARD_COST;
 use crate::scene::randomize::{Draw, Randomization};
@@ -35,8 +34,6 @@ use std::path::Path;
 pub const TAPE_BUDGET: usize = 2 << 30;
 /// The longest augmentation step in Θ (the box is [−1, 1]⁵).
 pub const AUGMENT_STEP: f64 = 0.1;
-/// CMA-ES's initial step size for a full optimisation (a quarter of the box's width).
-pub const SIGMA_FULL: f64 = 0.5;
 
 /// How a dataset is made; a resumed run must use the same.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -45,7 +42,7 @@ pub struct Config {
     pub scene_hash: String,
     /// Randomised scenes.
     pub scenes: usize,
-    /// Forward rollouts CMA-ES spends on each.
+    /// The most forward rollouts the root search spends on each.
     pub budget: usize,
     /// Perturbed copies of each scene.
     pub augment: usize,
@@ -100,14 +97,18 @@ pub fn spec_of(scene: &Scene) -> anyhow::Result<&Randomization> {
     })
 }
 
+/// A rollout's compute in forward rollouts: 1, or `1 + BACKWARD_COST` with its backward pass.
+pub fn forward_equivalents(o: &Outcome) -> f64 {
+    if o.grad.is_some() {
+        1.0 + BACKWARD_COST
+    } else {
+        1.0
+    }
+}
+
 /// The simulated particle-substeps of a rollout, counting the backward pass at its cost.
 pub fn cost(o: &Outcome) -> f64 {
-    let forward = (o.steps * o.substeps * o.particles) as f64;
-    if o.grad.is_some() {
-        forward * (1.0 + BACKWARD_COST)
-    } else {
-        forward
-    }
+    (o.steps * o.substeps * o.particles) as f64 * forward_equivalents(o)
 }
 
 /// A search's result: its lowest-loss rollout and what the search spent.
@@ -121,39 +122,6 @@ pub struct Search {
     pub trace: Vec<([f64; 5], Outcome)>,
 }
 
-/// CMA-ES on `problem` from `x0` with step size `sigma`, `budget` forward rollouts, sampling
-/// seeded by `seed`.
-pub fn optimise(
-    problem: &Problem,
-    x0: [f64; 5],
-    sigma: f64,
-    budget: usize,
-    seed: u64,
-) -> anyhow::Result<Search> {
-    let mut best: Option<([f64; 5], Outcome)> = None;
-    let mut spent = 0.0;
-    let mut trace = Vec::new();
-    run_sequential(x0.to_vec(), sigma, seed, budget, |x| {
-        let theta: [f64; 5] = std::array::from_fn(|i| reflect(x[i]));
-        let o = problem.evaluate(theta, false, true)?;
-        spent += cost(&o);
-        trace.push((theta, o.clone()));
-        let l = o.loss;
-        if best.as_ref().is_none_or(|(_, b)| o.loss < b.loss) {
-            best = Some((theta, o));
-        }
-        Ok(l)
-    })?;
-    let (theta, best) = best.context("CMA-ES ran no rollout")?;
-    Ok(Search {
-        theta,
-        best,
-        rollouts: budget as f64,
-        particle_substeps: spent,
-        trace,
-    })
-}
-
 /// Gauss–Newton steps on the dose from `theta` along the knob (see the module's notes): `steps`
 /// gradient rollouts and a last forward one.
 pub fn refine(problem: &Problem, theta: [f64; 5], steps: usize) -> anyhow::Result<Search> {
@@ -163,11 +131,7 @@ pub fn refine(problem: &Problem, theta: [f64; 5], steps: usize) -> anyhow::Resul
     let mut trace = Vec::new();
     for s in 0..=steps {
         let o = problem.evaluate(t, s < steps, true)?;
-        rollouts += if o.grad.is_some() {
-            1.0 + BACKWARD_COST
-        } else {
-            1.0
-        };
+        rollouts += forward_equivalents(&o);
         spent += cost(&o);
         trace.push((t, o.clone()));
         let next = o.grad.map(|g| {

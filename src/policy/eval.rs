@@ -16,7 +16,7 @@
 //! Each trial is kept in `dir/scene-J/NAME.json` (a policy's under its [`Policy::fingerprint`]), so
 //! a killed run resumes and a new policy reruns only its own trials.
 
-use super::dataset::{cost, draw_scene, problem_of, spec_of, Search};
+use super::dataset::{cost, draw_scene, forward_equivalents, problem_of, spec_of, Search};
 use super::net::Policy;
 use crate::optim::line::{self, Budget, Probe, SKILL_REPEATABILITY};
 use crate::optim::problem::{Outcome, Problem};
@@ -36,6 +36,16 @@ pub const HELD_OUT_STREAM: u64 = 0x4E1D_0075;
 pub const GLOBAL_SHARE: f64 = 0.5;
 /// Added to the packing seed for the `repacked` trial.
 pub const REPACK: u64 = 0x9ACC_1465;
+
+/// The trials' names, in the order a table lists them.
+pub const METHODS: [&str; 6] = [
+    "policy",
+    "finetuned",
+    "random",
+    "optimiser",
+    "repacked",
+    "warm",
+];
 
 /// One method on one held-out scene.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -170,16 +180,7 @@ pub fn line_optimise(
         &mut |w, grad| run(std::array::from_fn(|i| w[i]), grad, &mut trace),
     )?;
     let (theta, best) = lowest(&mut trace.iter()).context("line ran no rollout")?;
-    let rollouts = trace
-        .iter()
-        .map(|(_, o)| {
-            if o.grad.is_some() {
-                1.0 + BACKWARD_COST
-            } else {
-                1.0
-            }
-        })
-        .sum();
+    let rollouts = trace.iter().map(|(_, o)| forward_equivalents(o)).sum();
     Ok(Search {
         theta,
         best,
