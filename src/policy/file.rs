@@ -33,8 +33,7 @@ pub fn open(
 
 /// The value kept as JSON in `path` when it reads back and `valid` accepts it; otherwise
 /// `make`'s, written there atomically. Every long step of the policy (the dataset's scenes, the
-/// anchored labels, the fine-tune's episodes, the evaluation's trials) keeps its pieces this
-/// way, so a rerun after a kill redoes only the piece it was working on.
+/// fine-tune's episodes, the evaluation's trials) keeps its pieces this way, so a rerun after a kill redoes only the piece it was working on.
 pub fn kept<T: serde::Serialize + serde::de::DeserializeOwned>(
     path: &Path,
     valid: impl FnOnce(&T) -> bool,
