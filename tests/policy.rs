@@ -395,6 +395,21 @@ fn the_commands_run_end_to_end_on_a_small_scene_and_resume() {
         dataset::read(&Path::new(dir).join("dataset.safetensors")).unwrap(),
         samples
     );
+    // Asked for one scene more, the same folder grows by it and keeps the others as they were.
+    let grown = ds.map(|a| if a == "3" { "4" } else { a });
+    powderlab(&grown);
+    let more = dataset::read(&Path::new(dir).join("dataset.safetensors")).unwrap();
+    assert_eq!(more[..n], samples[..]);
+    assert!(more[n..].iter().all(|x| x.scene == 3));
+    assert_eq!(more.iter().filter(|x| !x.hindsight).count(), 8);
+    // Other settings are still refused.
+    let other = ds.map(|a| if a == "2" { "5" } else { a });
+    let out = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(other)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    powderlab(&ds);
     // Two rollouts per scene solve nothing: every label is kept for this test.
     let out = powderlab(&[
         "policy",

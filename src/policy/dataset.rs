@@ -279,6 +279,8 @@ pub fn scene_text(samples: &[Sample]) -> anyhow::Result<String> {
 
 /// Makes `dir` a dataset folder of `cfg`: writes its settings there, or checks that the ones
 /// there are the same (a resumed run, or the Ray path's tasks, must not mix two datasets).
+/// Only the count of scenes may differ: scene k does not depend on it, so a dataset grows by
+/// the scenes it lacks.
 pub fn claim(dir: &Path, cfg: &Config) -> anyhow::Result<()> {
     crate::util::create_output_dir(dir, "--dir")?;
     let cfg_path = dir.join("dataset-config.json");
@@ -286,7 +288,13 @@ pub fn claim(dir: &Path, cfg: &Config) -> anyhow::Result<()> {
         Ok(text) => {
             let old: Config = serde_json::from_str(&text)
                 .with_context(|| format!("reading {}", cfg_path.display()))?;
-            if &old != cfg {
+            let same_but_count = Config {
+                scenes: cfg.scenes,
+                ..old.clone()
+            } == *cfg;
+            if same_but_count && old.scenes != cfg.scenes {
+                crate::util::write_atomic(&cfg_path, serde_json::to_string_pretty(cfg)?.as_bytes())?
+            } else if !same_but_count {
                 anyhow::bail!(
                     "{}: this folder holds a dataset of other settings or another scene file; \
                      rerun with the same ones, or choose another --dir",
