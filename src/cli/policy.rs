@@ -113,7 +113,7 @@ struct DatasetArgs {
     #[arg(long, default_value = "runs/policy")]
     dir: PathBuf,
     /// Randomised scenes to label.
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, default_value_t = 80)]
     scenes: usize,
     /// At most this many forward rollouts for the root search on each scene.
     #[arg(long, default_value_t = 10)]

@@ -122,7 +122,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         md,
         "# A skill policy over randomised scenes (seed B's Sim2Real step)\n"
     );
-    let _ = writeln!(md, "Regenerate: `{command}` (about an hour on this machine from scratch: 23 min for the dataset, 27 for the held-out optimiser; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
+    let _ = writeln!(md, "Regenerate: `{command}` (about an hour and a half on this machine from scratch: 46 min for the dataset, 27 for the held-out optimiser; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
     let _ = writeln!(md, "Machine: {machine}.\n");
     let r = scene.randomize.as_ref();
     let range = |v: Option<(f64, f64)>, scale: f64, unit: &str| {
