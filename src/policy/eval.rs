@@ -31,9 +31,6 @@ use std::path::Path;
 
 /// Added to the dataset's seed to draw the held-out scenes.
 pub const HELD_OUT_STREAM: u64 = 0x4E1D_0075;
-/// The share of the optimiser's budget spent on its global phase, as `optimize` spends it
-/// (`HybridConfig::global`).
-pub const GLOBAL_SHARE: f64 = 0.5;
 /// Added to the packing seed for the `repacked` trial.
 pub const REPACK: u64 = 0x9ACC_1465;
 
@@ -243,7 +240,9 @@ pub fn run(
             let (problem, f) = problem_of(base, &d)?;
             let sd = dir.join(format!("scene-{j}"));
             std::fs::create_dir_all(&sd)?;
-            let global = (GLOBAL_SHARE * cfg.budget as f64).floor() as usize;
+            // The global phase's share of the budget, as `optimize` spends it.
+            let share = crate::optim::hybrid::HybridConfig::default().global;
+            let global = (share * cfg.budget as f64).floor() as usize;
             let optimiser = super::file::kept(
                 &sd.join("optimiser.json"),
                 |_| true,
