@@ -6,7 +6,7 @@
 use powderlab::policy::dataset::{self, gauss_newton, Sample};
 use powderlab::policy::features::layout;
 use powderlab::policy::knob;
-use powderlab::policy::net::{select, train, usable, Policy, TrainConfig};
+use powderlab::policy::net::{is_answer, select, train, usable, Policy, TrainConfig};
 use powderlab::policy::reinforce::{finetune, ReinforceConfig};
 use powderlab::scene::randomize::Draw;
 use powderlab::scene::Scene;
@@ -57,20 +57,31 @@ fn draw(k: u64) -> Draw {
     }
 }
 
-/// Samples whose Θ is a smooth function of two of the features.
+/// The knob of [`synthetic`]'s samples: a smooth function of two features, with a fold that two
+/// hidden units cannot follow.
+fn knob_of(x: &[f64]) -> f64 {
+    0.8 * (2.5 * x[0]).sin() * (1.5 * x[1]).cos()
+}
+
+/// Samples on the knob's family whose knob is [`knob_of`] their first two features; the others
+/// are constant.
 fn synthetic(n: usize) -> Vec<Sample> {
     let f = layout().len();
     let mut rng = SplitMix64(3);
     (0..n)
         .map(|k| {
-            let x: Vec<f64> = (0..f).map(|_| rng.uniform_in(-1.0, 1.0)).collect();
-            let theta = [
-                0.5 * x[0],
-                (x[1] * 1.5).sin() * 0.6,
-                0.3 * x[0] * x[1],
-                -0.4,
-                0.2 * x[1] - 0.3 * x[0],
-            ];
+            let x: Vec<f64> = (0..f)
+                .map(|i| {
+                    if i < 2 {
+                        rng.uniform_in(-1.0, 1.0)
+                    } else {
+                        0.1 * i as f64
+                    }
+                })
+                .collect();
+            let mut theta = knob::CANONICAL;
+            theta[knob::KNOB] = knob_of(&x);
+            theta[3] = 0.5 * x[1];
             Sample {
                 scene: k,
                 copy: k % 3,
@@ -78,8 +89,13 @@ fn synthetic(n: usize) -> Vec<Sample> {
                 features: x,
                 theta,
                 loss: 0.01 * k as f64,
-                // Within 0.5 g but for every 50th, which misses by 2 g.
-                indicator: if k % 50 == 49 { 2.0 } else { -0.001 * k as f64 },
+                // Within 0.1 g but for every 50th, which misses by 2 g short of a target that
+                // a deeper scoop would reach.
+                indicator: if k % 50 == 49 {
+                    2.0
+                } else {
+                    -0.0005 * k as f64
+                },
                 start_loss: 0.02 * k as f64,
                 rollouts: 20.0,
                 particle_substeps: 1.25e7,
@@ -109,18 +125,9 @@ fn the_dataset_file_round_trips_every_field() {
 fn the_mlp_fits_a_small_smooth_map() {
     let samples = synthetic(200);
     let var: f64 = {
-        let m: Vec<f64> = (0..5)
-            .map(|i| samples.iter().map(|s| s.theta[i]).sum::<f64>() / 200.0)
-            .collect();
-        samples
-            .iter()
-            .flat_map(|s| {
-                (0..5)
-                    .map(|i| (s.theta[i] - m[i]).powi(2))
-                    .collect::<Vec<_>>()
-            })
-            .sum::<f64>()
-            / 1000.0
+        let k: Vec<f64> = samples.iter().map(|s| s.theta[knob::KNOB]).collect();
+        let m = k.iter().sum::<f64>() / 200.0;
+        k.iter().map(|v| (v - m).powi(2)).sum::<f64>() / 200.0
     };
     let cfg = TrainConfig {
         epochs: 600,
@@ -131,12 +138,40 @@ fn the_mlp_fits_a_small_smooth_map() {
     assert_eq!(usable(&samples, &cfg).len(), 196);
     let (policy, curve) = train(&samples, &cfg).unwrap();
     let last = curve.last().unwrap().train_mse;
-    // The map is smooth and noiseless: the fit must explain at least 95 % of Θ's variance.
+    // The map is smooth and noiseless: the fit must explain at least 95 % of the knob's
+    // variance.
     assert!(last < 0.05 * var, "MSE {last} against a variance of {var}");
     let s = &samples[17];
     let got = policy.act(&s.features).unwrap();
-    let err: f64 = (0..5).map(|i| (got[i] - s.theta[i]).powi(2)).sum::<f64>() / 5.0;
+    assert_eq!(got.len(), knob::OUTPUTS);
+    let err = (got[0] - s.theta[knob::KNOB]).powi(2);
     assert!(err < 0.2 * var, "one sample's error {err}");
+}
+
+/// A label is learnt when it is its scene's answer: within the tolerance, or at the family's
+/// end with the target beyond it; not a copy whose refinement fell short.
+#[test]
+fn only_answers_are_learnt() {
+    let mut s = synthetic(1).remove(0);
+    let tol = TrainConfig::default().max_label_error_g;
+    let at = |s: &mut Sample, k: f64, ind: f64| {
+        s.theta[knob::KNOB] = k;
+        s.indicator = ind;
+    };
+    at(&mut s, 0.3, 0.5 * tol);
+    assert!(is_answer(&s, tol));
+    at(&mut s, 0.3, -2.0 * tol);
+    assert!(!is_answer(&s, tol), "short of the target inside the box");
+    // The deepest scoop holds less than the target: nothing doses closer.
+    at(&mut s, 1.0, 0.8);
+    assert!(is_answer(&s, tol));
+    // The deepest scoop holds more than the target: a shallower one would dose closer.
+    at(&mut s, 1.0, -0.8);
+    assert!(!is_answer(&s, tol));
+    at(&mut s, -1.0, -0.8);
+    assert!(is_answer(&s, tol));
+    at(&mut s, -1.0, 0.8);
+    assert!(!is_answer(&s, tol));
 }
 
 /// The width is chosen on the training set's own validation split: the chosen network is the
@@ -157,7 +192,7 @@ fn the_width_is_chosen_by_the_validation_split() {
         .map(|c| c.val_mse)
         .fold(f64::INFINITY, f64::min);
     assert_eq!(best, v);
-    // Two units cannot carry a five-output map of two features that a 32-wide net fits.
+    // Two units cannot carry the fold of two features that a 32-wide net fits.
     assert_eq!(h, 32, "{table:?}");
 }
 
@@ -165,7 +200,7 @@ fn the_width_is_chosen_by_the_validation_split() {
 fn reinforce_improves_a_contextual_bandit() {
     // Each context asks for its own Θ: a quarter of its first two features.
     let names: Vec<String> = (0..3).map(|i| format!("x{i}")).collect();
-    let policy = Policy::new(names, 16, vec![0.0; 3], vec![1.0; 3], [0.0; 5], 1).unwrap();
+    let policy = Policy::new(names, 16, vec![0.0; 3], vec![1.0; 3], &[0.0; 5], 1).unwrap();
     let mut rng = SplitMix64(9);
     let contexts: Vec<Vec<f64>> = (0..8)
         .map(|_| (0..3).map(|_| rng.uniform_in(-1.0, 1.0)).collect())
@@ -190,7 +225,7 @@ fn reinforce_improves_a_contextual_bandit() {
         lr: 1e-2,
         seed: 4,
     };
-    let reward = |_: usize, _: usize, ctx: usize, theta: [f64; 5]| -> anyhow::Result<f64> {
+    let reward = |_: usize, _: usize, ctx: usize, theta: &[f64]| -> anyhow::Result<f64> {
         let w = want(&contexts[ctx]);
         Ok(-(0..5).map(|i| (theta[i] - w[i]).powi(2)).sum::<f64>())
     };
@@ -208,10 +243,10 @@ fn a_policy_of_another_feature_layout_is_refused_by_name() {
         .iter()
         .map(|s| s.to_string())
         .collect();
-    let p = Policy::new(names, 8, vec![0.0; 3], vec![1.0; 3], [0.0; 5], 0).unwrap();
+    let p = Policy::new(names, 8, vec![0.0; 3], vec![1.0; 3], &[0.0], 0).unwrap();
     let path = d.join("old.safetensors");
     p.save(&path).unwrap();
-    let e = match Policy::load(&path, &layout()) {
+    let e = match Policy::load(&path, &layout(), knob::OUTPUTS) {
         Ok(_) => panic!(
             "a policy of 3 features was loaded for a layout of {}",
             layout().len()
@@ -227,12 +262,32 @@ fn a_policy_of_another_feature_layout_is_refused_by_name() {
     assert_eq!(e.lines().count(), 1, "{e}");
     // Its own layout loads, with the same answers.
     let names = p.layout.clone();
-    let q = Policy::load(&path, &names).unwrap();
+    let q = Policy::load(&path, &names, knob::OUTPUTS).unwrap();
     assert_eq!(q.fingerprint().unwrap(), p.fingerprint().unwrap());
     assert_eq!(
         q.act(&[0.1, 0.2, 0.3]).unwrap(),
         p.act(&[0.1, 0.2, 0.3]).unwrap()
     );
+    // A network of all five of Θ's components is not a dosing policy (its knob alone).
+    let five = Policy::new(
+        p.layout.clone(),
+        8,
+        vec![0.0; 3],
+        vec![1.0; 3],
+        &[0.0; 5],
+        0,
+    )
+    .unwrap();
+    five.save(&path).unwrap();
+    let e = format!(
+        "{:#}",
+        Policy::load(&path, &names, knob::OUTPUTS).err().unwrap()
+    );
+    assert!(
+        e.contains("old.safetensors") && e.contains("metadata.outputs: 5, expected 1"),
+        "{e}"
+    );
+    assert!(e.contains("policy train") && e.lines().count() == 1, "{e}");
 }
 
 #[test]

@@ -286,7 +286,7 @@ pub fn run(
                 )?,
             ];
             for (k, c) in candidates.iter().enumerate() {
-                let theta = c.policy.act(&f)?;
+                let theta = super::knob::act(c.policy, &problem, &d, &f)?;
                 trials.push(super::file::kept(
                     &sd.join(format!("{}-{}.json", c.name, c.fingerprint)),
                     |_| true,

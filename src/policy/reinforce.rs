@@ -1,8 +1,9 @@
 //! The fine-tune: REINFORCE (Williams 1992) with a baseline, seed B's last step.
 //!
-//! The policy is a Gaussian of fixed spread σ around the network's Θ. Each iteration draws
-//! half a batch of contexts (scenes) and, for each, a mirrored pair of episodes
-//! `a± = μ(f) ± σε` (clamped into the box when run), with rewards `R±`. Each episode's baseline
+//! The policy is a Gaussian of fixed spread σ around the network's outputs (the dosing policy's
+//! one output is the knob of [`super::knob`]). Each iteration draws half a batch of contexts
+//! (scenes) and, for each, a mirrored pair of episodes `a± = μ(f) ± σε` (clamped into [−1, 1]
+//! when run), with rewards `R±`. Each episode's baseline
 //! is its partner's reward, `A± = ±(R₊ − R₋)/2`: the scenes of a batch differ in how hard they
 //! are far more than two actions on one scene differ, so a baseline taken across scenes (the
 //! batch mean) buries the action's effect under the scene's. Mirrored sampling keeps the
@@ -11,7 +12,7 @@
 //! Salimans et al. 2017). The advantages are divided by their spread over the batch. One
 //! AdamW step descends `−mean(A · log N(a; μ(f), σ²))`.
 //!
-//! `reward(iteration, slot, context, Θ)` is the caller's: a rollout's −L, or a toy's. A caller
+//! `reward(iteration, slot, context, action)` is the caller's: a rollout's −L, or a toy's. A caller
 //! that keeps each (iteration, slot)'s reward can replay a killed run exactly, since the draws
 //! follow the seed alone.
 
@@ -28,7 +29,7 @@ pub struct ReinforceConfig {
     pub iterations: usize,
     /// Episodes (rollouts) per iteration: `batch / 2` scenes, a mirrored pair on each.
     pub batch: usize,
-    /// The Gaussian's standard deviation in Θ.
+    /// The Gaussian's standard deviation, in the outputs' units.
     pub sigma: f64,
     pub lr: f64,
     pub seed: u64,
@@ -55,13 +56,16 @@ pub struct Iteration {
     pub contexts: Vec<usize>,
 }
 
+/// An episode's reward: `reward(iteration, slot, context, action)`.
+pub type Reward<'a> = dyn Fn(usize, usize, usize, &[f64]) -> anyhow::Result<f64> + Sync + 'a;
+
 /// Fine-tunes `policy` in place on `contexts` (feature rows); `on_iteration` hears of each
 /// batch.
 pub fn finetune(
     policy: &Policy,
     contexts: &[Vec<f64>],
     cfg: &ReinforceConfig,
-    reward: &(dyn Fn(usize, usize, usize, [f64; 5]) -> anyhow::Result<f64> + Sync),
+    reward: &Reward<'_>,
     on_iteration: &mut dyn FnMut(&Iteration),
 ) -> anyhow::Result<Vec<Iteration>> {
     anyhow::ensure!(!contexts.is_empty(), "no contexts to fine-tune on");
@@ -90,25 +94,26 @@ pub fn finetune(
         let x = policy.inputs(&rows)?;
         let mu = policy.forward(&x)?;
         let mu_v = mu.to_vec2::<f64>()?;
-        let mut actions: Vec<[f64; 5]> = Vec::with_capacity(cfg.batch);
+        let n = policy.outputs;
+        let mut actions: Vec<Vec<f64>> = Vec::with_capacity(cfg.batch);
         for pair in mu_v.chunks(2) {
-            let eps: [f64; 5] = std::array::from_fn(|_| rng.normal());
+            let eps: Vec<f64> = (0..n).map(|_| rng.normal()).collect();
             let m = &pair[0];
-            actions.push(std::array::from_fn(|d| m[d] + cfg.sigma * eps[d]));
-            actions.push(std::array::from_fn(|d| m[d] - cfg.sigma * eps[d]));
+            actions.push((0..n).map(|d| m[d] + cfg.sigma * eps[d]).collect());
+            actions.push((0..n).map(|d| m[d] - cfg.sigma * eps[d]).collect());
         }
         let rewards: Vec<f64> = actions
             .par_iter()
             .enumerate()
             .map(|(slot, a)| {
-                let theta = a.map(|v| v.clamp(-1.0, 1.0));
-                reward(it, slot, picks[slot], theta)
+                let clamped: Vec<f64> = a.iter().map(|v| v.clamp(-1.0, 1.0)).collect();
+                reward(it, slot, picks[slot], &clamped)
             })
             .collect::<anyhow::Result<_>>()?;
         let adv = advantages(&rewards);
         let a = Tensor::from_vec(
             actions.iter().flatten().copied().collect::<Vec<f64>>(),
-            (cfg.batch, 5),
+            (cfg.batch, n),
             &Device::Cpu,
         )?;
         let adv_t = Tensor::from_vec(adv, cfg.batch, &Device::Cpu)?;

@@ -1,6 +1,7 @@
 //! The fine-tune on simulated scenes: REINFORCE ([`super::reinforce`]) whose episodes are
 //! rollouts of freshly drawn scenes ([`fresh_contexts`]), rewarded with −L (the scene's dosing
-//! loss). Not the dataset's scenes: the distilled network already fits their labels, so there
+//! loss). The Gaussian lives on the policy's knob; an episode runs the family's Θ at the drawn
+//! knob ([`super::knob::family`]). Not the dataset's scenes: the distilled network already fits their labels, so there
 //! the rewards could only teach it what it knows; new scenes are where it makes its errors.
 //!
 //! Each episode's reward is kept in `dir/episode-I-S.json` with its scene and Θ, so a killed
@@ -54,13 +55,15 @@ pub fn finetune_scenes(
     crate::util::create_output_dir(dir, "--dir")?;
     let rows: Vec<Vec<f64>> = contexts.iter().map(|(_, f)| f.clone()).collect();
     let spent = std::sync::Mutex::new(0.0);
-    let reward = |it: usize, slot: usize, ctx: usize, theta: [f64; 5]| -> anyhow::Result<f64> {
+    let reward = |it: usize, slot: usize, ctx: usize, a: &[f64]| -> anyhow::Result<f64> {
         let path = dir.join(format!("episode-{it}-{slot}.json"));
+        let draw = &contexts[ctx].0;
+        let (problem, _) = problem_of(base, draw)?;
+        let theta = super::knob::family(&problem, draw, a[0]);
         let e = super::file::kept(
             &path,
-            |e: &Episode| e.context == ctx && e.theta == theta && e.draw == contexts[ctx].0,
+            |e: &Episode| e.context == ctx && e.theta == theta && e.draw == *draw,
             || {
-                let (problem, _) = problem_of(base, &contexts[ctx].0)?;
                 let o = problem.evaluate(theta, false, true)?;
                 let e = Episode {
                     draw: contexts[ctx].0.clone(),

@@ -63,7 +63,11 @@ pub fn run(
     let distilled = dir.join("policy.safetensors");
     policy.save(&distilled)?;
     let fp = policy.fingerprint()?;
-    let tuned = Policy::load(&distilled, &features::layout())?;
+    let tuned = Policy::load(
+        &distilled,
+        &features::layout(),
+        crate::policy::knob::OUTPUTS,
+    )?;
     let iters = s.finetune.iterations;
     let contexts =
         tune::fresh_contexts(base, s.dataset.seed, (iters * s.finetune.batch / 2).max(1))?;
