@@ -6,7 +6,7 @@
 use powderlab::policy::dataset::{self, gauss_newton, Sample};
 use powderlab::policy::features::layout;
 use powderlab::policy::knob;
-use powderlab::policy::net::{is_answer, select, train, usable, Policy, TrainConfig};
+use powderlab::policy::net::{fit, is_answer, select, train, usable, Policy, TrainConfig};
 use powderlab::policy::reinforce::{finetune, ReinforceConfig};
 use powderlab::scene::randomize::Draw;
 use powderlab::scene::Scene;
@@ -183,17 +183,73 @@ fn the_width_is_chosen_by_the_validation_split() {
         epochs: 300,
         ..TrainConfig::default()
     };
-    let (policy, curve, table) = select(&samples, &cfg, &[2, 32]).unwrap();
+    let (fit, table) = select(&samples, &cfg, &[2, 32]).unwrap();
     assert_eq!(table.len(), 2);
     let (h, v) = *table.iter().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
-    assert_eq!(policy.hidden, h);
-    let best = curve
-        .iter()
-        .map(|c| c.val_mse)
-        .fold(f64::INFINITY, f64::min);
-    assert_eq!(best, v);
+    assert_eq!(fit.policy.hidden, h);
+    assert_eq!(fit.policy.members.len(), cfg.members);
+    assert_eq!(fit.val_mse, v);
     // Two units cannot carry the fold of two features that a 32-wide net fits.
     assert_eq!(h, 32, "{table:?}");
+}
+
+/// The ensemble's answer is its members' mean: on the validation split its error is at most
+/// their mean error (the square is convex), and its file keeps every member.
+#[test]
+fn an_ensemble_is_the_mean_of_its_members() {
+    let samples = synthetic(120);
+    let cfg = TrainConfig {
+        epochs: 200,
+        hidden: 16,
+        members: 3,
+        ..TrainConfig::default()
+    };
+    let f = fit(&samples, &cfg).unwrap();
+    assert_eq!(f.policy.members.len(), 3);
+    let members: Vec<Policy> = (0..3)
+        .map(|m| {
+            train(
+                &samples,
+                &TrainConfig {
+                    seed: cfg.seed + m,
+                    ..cfg
+                },
+            )
+            .unwrap()
+            .0
+        })
+        .collect();
+    let x = &samples[4].features;
+    let mean = members.iter().map(|p| p.act(x).unwrap()[0]).sum::<f64>() / 3.0;
+    assert!((f.policy.act(x).unwrap()[0] - mean).abs() < 1e-12);
+    let (val, mut each) = (f.val_mse, 0.0);
+    for p in &members {
+        let v: Vec<&Sample> = usable(&samples, &cfg)
+            .into_iter()
+            .filter(|s| s.scene % cfg.val_every == cfg.val_every - 1)
+            .collect();
+        each += v
+            .iter()
+            .map(|s| (p.act(&s.features).unwrap()[0] - s.theta[knob::KNOB]).powi(2))
+            .sum::<f64>()
+            / v.len() as f64
+            / 3.0;
+    }
+    assert!(
+        val <= each + 1e-12,
+        "ensemble {val} against its members' mean {each}"
+    );
+    let d = scratch("ensemble");
+    let path = d.join("policy.safetensors");
+    f.policy.save(&path).unwrap();
+    let q = Policy::load(&path, &layout(), knob::OUTPUTS).unwrap();
+    assert_eq!(q.members.len(), 3);
+    assert_eq!(q.fingerprint().unwrap(), f.policy.fingerprint().unwrap());
+    // Members of other standardisations are not one policy.
+    let names = layout();
+    let n = names.len();
+    let other = Policy::new(names, 16, vec![1.0; n], vec![1.0; n], &[0.0], 0).unwrap();
+    assert!(Policy::ensemble(vec![q, other]).is_err());
 }
 
 #[test]

@@ -51,12 +51,17 @@ struct TrainArgs {
     /// Full-batch AdamW steps.
     #[arg(long, default_value_t = 3000)]
     epochs: usize,
-    /// Units in each of the two hidden layers.
-    #[arg(long, default_value_t = 64)]
-    hidden: usize,
-    /// Leave out samples whose Θ misses its scene's target by more than this (g).
-    #[arg(long, default_value_t = 0.5)]
+    /// Units in each of the two hidden layers; without it, the width of lowest validation
+    /// error among 8, 16, 32 and 64.
+    #[arg(long)]
+    hidden: Option<usize>,
+    /// Learn a sample when its Θ doses within this (g) of its target, or sits at the family's
+    /// end with the target beyond it.
+    #[arg(long, default_value_t = net::LABEL_TOLERANCE_G)]
     max_label_error_g: f64,
+    /// Networks in the ensemble.
+    #[arg(long, default_value_t = net::MEMBERS)]
+    members: usize,
 }
 
 #[derive(clap::Args)]
@@ -204,12 +209,20 @@ fn train_cmd(t: TrainArgs) -> Result<()> {
     let samples = dataset::read(&t.dir.join(&t.data))?;
     let cfg = TrainConfig {
         epochs: t.epochs,
-        hidden: t.hidden,
         max_label_error_g: t.max_label_error_g,
+        members: t.members,
         ..TrainConfig::default()
     };
     let used = net::usable(&samples, &cfg).len();
-    let (policy, curve) = net::train(&samples, &cfg)?;
+    let widths = t.hidden.map_or(net::WIDTHS.to_vec(), |h| vec![h]);
+    let (
+        net::Fit {
+            policy,
+            curve,
+            val_mse,
+        },
+        _,
+    ) = net::select(&samples, &cfg, &widths)?;
     let path = t.dir.join("policy.safetensors");
     policy.save(&path)?;
     let mut csv = String::from("epoch,train_mse,val_mse\n");
@@ -218,13 +231,11 @@ fn train_cmd(t: TrainArgs) -> Result<()> {
     }
     powderlab::util::write_atomic(&t.dir.join("train.csv"), csv.as_bytes())?;
     let last = curve.last().map_or(f64::NAN, |p| p.train_mse);
-    let val = curve
-        .iter()
-        .map(|p| p.val_mse)
-        .fold(f64::INFINITY, f64::min);
     println!(
-        "{}: fitted on {used} of {} samples (those within {} g of their target); training MSE {last:.4}, lowest validation MSE {val:.4}",
+        "{}: {} networks {} wide, fitted on {used} of {} samples (their scene's answers, within {} g); training MSE {last:.4}, the ensemble's validation MSE {val_mse:.4}",
         path.display(),
+        policy.members.len(),
+        policy.hidden,
         samples.len(),
         cfg.max_label_error_g
     );

@@ -76,7 +76,7 @@ pub fn finetune(
     );
     anyhow::ensure!(cfg.sigma > 0.0, "sigma must be positive");
     let mut opt = AdamW::new(
-        policy.mlp.vars(),
+        policy.vars(),
         ParamsAdamW {
             lr: cfg.lr,
             weight_decay: 0.0,

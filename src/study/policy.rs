@@ -31,9 +31,11 @@ pub struct Settings {
 /// What the study found.
 pub struct Outcome {
     pub samples: Vec<Sample>,
-    /// The chosen fit's curve.
+    /// The chosen fit's curve (its members' mean).
     pub curve: Vec<TrainPoint>,
-    /// Each hidden width tried and its lowest validation MSE.
+    /// The chosen ensemble's validation MSE.
+    pub val_mse: f64,
+    /// Each hidden width tried and its ensemble's validation MSE.
     pub widths: Vec<(usize, f64)>,
     pub iterations: Vec<Iteration>,
     /// Particle-substeps the fine-tune's episodes simulated.
@@ -59,7 +61,14 @@ pub fn run(
         progress("held-out optimiser and random Θ", k, m)
     })?;
     progress("fit", 0, 1);
-    let (policy, curve, widths) = net::select(&samples, &s.train, &net::WIDTHS)?;
+    let (
+        net::Fit {
+            policy,
+            curve,
+            val_mse,
+        },
+        widths,
+    ) = net::select(&samples, &s.train, &net::WIDTHS)?;
     let distilled = dir.join("policy.safetensors");
     policy.save(&distilled)?;
     let fp = policy.fingerprint()?;
@@ -99,6 +108,7 @@ pub fn run(
     Ok(Outcome {
         samples,
         curve,
+        val_mse,
         widths,
         iterations,
         finetune_cost,
@@ -192,12 +202,13 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         .iter()
         .map(|p| p.val_mse)
         .fold(f64::INFINITY, f64::min);
+    let tol = t.max_label_error_g;
     let _ = writeln!(md, "## The policy\n");
     let used = net::usable(&o.samples, t).len();
     let _ = writeln!(
         md,
-        "- **The network:** an MLP {}→h→h→5 (candle), inputs standardised by the training set, fitted by full-batch AdamW (lr {}, weight decay {}) for {} epochs on the mean squared error in Θ; every {}th scene (with its copies and hindsight samples) is held out to choose the epoch and the width h. Samples whose Θ misses by more than {} g are not learnt: {} of {} are used.",
-        features::layout().len(), t.lr, t.weight_decay, t.epochs, t.val_every, t.max_label_error_g, used, o.samples.len()
+        "- **The network:** the mean of {} MLPs {}→h→h→1 (candle; a deep ensemble, each member from its own initial weights), whose one output is the scoop depth; Θ is the family's member at that depth. Inputs are standardised by the training set. Each member is fitted by full-batch AdamW (lr {}, weight decay {}) for {} epochs on the mean squared error of the depth; every {}th scene (with its copies and hindsight samples) is held out to choose each member's epoch and the width h. A sample is learnt when it is its scene's answer: it doses within {tol} g of its target, or the target lies beyond the family's end and its depth is at that end. {} of {} samples are used.",
+        t.members, features::layout().len(), t.lr, t.weight_decay, t.epochs, t.val_every, used, o.samples.len()
     );
     let table: Vec<String> = o
         .widths
@@ -206,7 +217,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         .collect();
     let _ = writeln!(
         md,
-        "- **The width,** by the lowest validation MSE of each: {}. The chosen one is {} wide.",
+        "- **The width,** by each ensemble's validation MSE (of the depth): {}. The chosen one is {} wide.",
         table.join(", "),
         o.widths
             .iter()
@@ -215,16 +226,17 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     );
     let _ = writeln!(
         md,
-        "- **The distilled policy:** training MSE at the end {:.5}, lowest validation MSE {:.5}.",
+        "- **The distilled policy:** its members' training MSE at the end {:.5} and lowest validation MSE {:.5} (means over the members); the ensemble's validation MSE {:.5}.",
         last.map_or(f64::NAN, |p| p.train_mse),
-        best_val
+        best_val,
+        o.val_mse
     );
     let f = &s.finetune;
     let first = o.iterations.first().map_or(f64::NAN, |i| i.mean_reward);
     let final_ = o.iterations.last().map_or(f64::NAN, |i| i.mean_reward);
     let _ = writeln!(
         md,
-        "- **Fine-tuned:** REINFORCE from the distilled network, a Gaussian of σ = {} around its Θ, episodes in mirrored pairs on one scene, each the other's baseline (seed B's smoothed gradient), reward −L (the dosing loss), {} iterations of {} episodes on freshly drawn scenes, neither the dataset's nor the held-out ones (AdamW, lr {}): {} rollouts, {:.2} G particle-substeps. The batch's mean reward went from {:.4} (first) to {:.4} (last); the batches draw different scenes, so the held-out test below is what decides.\n",
+        "- **Fine-tuned:** REINFORCE from the distilled network, a Gaussian of σ = {} around its depth, episodes in mirrored pairs on one scene, each the other's baseline (seed B's smoothed gradient), reward −L (the dosing loss), {} iterations of {} episodes on freshly drawn scenes, neither the dataset's nor the held-out ones (AdamW, lr {}): {} rollouts, {:.2} G particle-substeps. The batch's mean reward went from {:.4} (first) to {:.4} (last); the batches draw different scenes, so the held-out test below is what decides.\n",
         f.sigma, f.iterations, f.batch, f.lr, f.iterations * f.batch, o.finetune_cost / 1e9, first, final_
     );
     let _ = writeln!(md, "![training and fine-tuning curves](policy.svg)\n");
