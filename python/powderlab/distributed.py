@@ -101,7 +101,7 @@ def _write_atomic(path: Path, text: str) -> None:
 def map_dataset(
     scene: Scene,
     dir: Union[str, Path],
-    scenes: int = 80,
+    scenes: int = 160,
     budget: int = 10,
     augment: int = 2,
     augment_steps: int = 1,

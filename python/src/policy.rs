@@ -16,7 +16,7 @@ fn config_of(text: &str) -> PyResult<Config> {
 /// The settings of a dataset of `scene` (JSON), as `powderlab policy dataset` makes them from
 /// its options.
 #[pyfunction]
-#[pyo3(signature = (scene, scenes = 80, budget = 10, augment = 2, augment_steps = 1, perturb = 0.1, seed = 0))]
+#[pyo3(signature = (scene, scenes = 160, budget = 10, augment = 2, augment_steps = 1, perturb = 0.1, seed = 0))]
 pub fn policy_dataset_config(
     scene: &Scene,
     scenes: usize,

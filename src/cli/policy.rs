@@ -8,7 +8,7 @@ use powderlab::policy::eval::{self, Candidate, EvalConfig};
 use powderlab::policy::features::layout;
 use powderlab::policy::knob;
 use powderlab::policy::net::{self, Policy, TrainConfig};
-use powderlab::policy::reinforce::ReinforceConfig;
+use powderlab::policy::reinforce::{self, ReinforceConfig};
 use powderlab::policy::tune;
 use powderlab::scene::Scene;
 use std::path::PathBuf;
@@ -70,15 +70,15 @@ struct FinetuneArgs {
     scene: PathBuf,
     #[arg(long, default_value = "runs/policy")]
     dir: PathBuf,
-    #[arg(long, default_value_t = 12)]
+    #[arg(long, default_value_t = reinforce::ITERATIONS)]
     iterations: usize,
     /// Episodes (rollouts) per iteration.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = reinforce::BATCH)]
     batch: usize,
-    /// The Gaussian's standard deviation in Θ.
-    #[arg(long, default_value_t = 0.1)]
+    /// The Gaussian's standard deviation, in the knob's units.
+    #[arg(long, default_value_t = reinforce::SIGMA)]
     sigma: f64,
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, default_value_t = reinforce::LR)]
     lr: f64,
 }
 
@@ -119,7 +119,7 @@ struct DatasetArgs {
     #[arg(long, default_value = "runs/policy")]
     dir: PathBuf,
     /// Randomised scenes to label.
-    #[arg(long, default_value_t = 80)]
+    #[arg(long, default_value_t = dataset::SCENES)]
     scenes: usize,
     /// At most this many forward rollouts for the root search on each scene.
     #[arg(long, default_value_t = 10)]

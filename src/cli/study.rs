@@ -649,7 +649,7 @@ fn planning_cmd(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// `powderlab study policy`: seed B's Sim2Real step on the randomised dosing scene (80
+/// `powderlab study policy`: seed B's Sim2Real step on the randomised dosing scene (160
 /// labelled scenes with 2 perturbed copies each and their hindsight samples, the fit, the
 /// fine-tune, 20 held-out scenes).
 fn policy_cmd(a: Args) -> Result<()> {
@@ -664,7 +664,7 @@ fn policy_cmd(a: Args) -> Result<()> {
     let settings = policy::Settings {
         dataset: dataset::Config {
             scene_hash: powderlab::optim::fnv1a(&scene.source),
-            scenes: 80,
+            scenes: dataset::SCENES,
             budget: 10,
             augment: 2,
             augment_steps: 1,

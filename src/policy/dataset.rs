@@ -35,6 +35,10 @@ pub const TAPE_BUDGET: usize = 2 << 30;
 /// The longest augmentation step in Θ (the box is [−1, 1]⁵).
 pub const AUGMENT_STEP: f64 = 0.1;
 
+/// The default count of randomised scenes: the held-out error fell from 0.17 g to 0.14 g from 40
+/// to 80, so the data was doubled again.
+pub const SCENES: usize = 160;
+
 /// How a dataset is made; a resumed run must use the same.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Config {
