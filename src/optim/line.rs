@@ -65,6 +65,19 @@ pub struct Budget {
     pub closed: f64,
 }
 
+impl Budget {
+    /// `line` as `optimize` runs it: `forward_rollouts` of compute, a backward pass at its cost,
+    /// restarts until the budget is spent, and a bracket closed at [`SKILL_REPEATABILITY`].
+    pub fn restarting(forward_rollouts: f64) -> Budget {
+        Budget {
+            forward_rollouts,
+            gradient_cost: 1.0 + crate::optim::report::BACKWARD_COST,
+            restart: true,
+            closed: SKILL_REPEATABILITY,
+        }
+    }
+}
+
 /// Runs the search from `start`. `known` is the start's signed indicator and loss where a
 /// forward rollout there already ran (a random axis then needs no new one). `partner` is a point
 /// already run and its signed indicator: where that has the other sign than `known`'s, the

@@ -385,12 +385,7 @@ impl Runner<'_> {
         let GlobalPhase {
             ran: global, found, ..
         } = self.global_phase(s, method)?;
-        let budget = super::line::Budget {
-            forward_rollouts: (s.epochs - global) as f64,
-            gradient_cost: 1.0 + report::BACKWARD_COST,
-            restart: true,
-            closed: super::line::SKILL_REPEATABILITY,
-        };
+        let budget = super::line::Budget::restarting((s.epochs - global) as f64);
         (0..s.seeds).into_par_iter().try_for_each(|k| {
             let start = lowest(&found, k).context("the global phase ran nothing")?;
             let f0 = start.outcome.indicator;

@@ -18,9 +18,8 @@
 
 use super::dataset::{cost, draw_scene, forward_equivalents, problem_of, spec_of, Search};
 use super::net::Policy;
-use crate::optim::line::{self, Budget, Probe, SKILL_REPEATABILITY};
+use crate::optim::line::{self, Budget, Probe};
 use crate::optim::problem::{Outcome, Problem};
-use crate::optim::report::BACKWARD_COST;
 use crate::scene::randomize::Draw;
 use crate::scene::Scene;
 use crate::util::SplitMix64;
@@ -166,12 +165,7 @@ pub fn line_optimise(
         &start,
         known,
         partner.as_ref().map(|(x, f)| (&x[..], *f)),
-        Budget {
-            forward_rollouts: budget.saturating_sub(global) as f64,
-            gradient_cost: 1.0 + BACKWARD_COST,
-            restart: true,
-            closed: SKILL_REPEATABILITY,
-        },
+        Budget::restarting(budget.saturating_sub(global) as f64),
         true,
         &mut rng,
         &mut |w, grad| run(std::array::from_fn(|i| w[i]), grad, &mut trace),
