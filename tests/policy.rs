@@ -222,6 +222,11 @@ fn an_ensemble_is_the_mean_of_its_members() {
     let x = &samples[4].features;
     let mean = members.iter().map(|p| p.act(x).unwrap()[0]).sum::<f64>() / 3.0;
     assert!((f.policy.act(x).unwrap()[0] - mean).abs() < 1e-12);
+    // A member taken out is the network trained alone with its seed.
+    assert_eq!(
+        f.policy.member(1).unwrap().act(x).unwrap(),
+        members[1].act(x).unwrap()
+    );
     let (val, mut each) = (f.val_mse, 0.0);
     for p in &members {
         let v: Vec<&Sample> = usable(&samples, &cfg)

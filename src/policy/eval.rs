@@ -9,7 +9,8 @@
 //!   No policy sees the grains' packing, so this is the error a policy that knew the optimiser's
 //!   answer exactly would still make: what the packing alone costs a one-rollout answer;
 //! - **random:** one rollout of a Θ drawn uniformly from the box;
-//! - **a policy** (the distilled one, the fine-tuned one): one rollout of its Θ;
+//! - **a policy** (the distilled ensemble, its first member alone, the fine-tuned ensemble): one
+//!   rollout of its Θ;
 //! - **warm:** `line`'s root search from the distilled policy's Θ with a quarter of the budget
 //!   (rounded up), no global phase.
 //!
@@ -34,8 +35,9 @@ pub const HELD_OUT_STREAM: u64 = 0x4E1D_0075;
 pub const REPACK: u64 = 0x9ACC_1465;
 
 /// The trials' names, in the order a table lists them.
-pub const METHODS: [&str; 6] = [
+pub const METHODS: [&str; 7] = [
     "policy",
+    "member",
     "finetuned",
     "random",
     "optimiser",

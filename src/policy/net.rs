@@ -143,6 +143,29 @@ impl Policy {
         Ok(first)
     }
 
+    /// Member `m` alone, as a policy of its own (its weights copied).
+    pub fn member(&self, m: usize) -> anyhow::Result<Policy> {
+        let mlp = self.members.get(m).context("no such member")?;
+        let layers = mlp
+            .layers
+            .iter()
+            .map(|(w, b)| {
+                Ok((
+                    Var::from_tensor(&w.as_tensor().copy()?)?,
+                    Var::from_tensor(&b.as_tensor().copy()?)?,
+                ))
+            })
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        Ok(Policy {
+            members: vec![Mlp { layers }],
+            x_mean: self.x_mean.clone(),
+            x_std: self.x_std.clone(),
+            outputs: self.outputs,
+            hidden: self.hidden,
+            layout: self.layout.clone(),
+        })
+    }
+
     /// Every member's weights and biases.
     pub fn vars(&self) -> Vec<Var> {
         self.members.iter().flat_map(|m| m.vars()).collect()

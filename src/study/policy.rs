@@ -90,6 +90,7 @@ pub fn run(
     )?;
     let finetuned = dir.join("finetuned.safetensors");
     tuned.save(&finetuned)?;
+    let member = policy.member(0)?;
     let candidates = [
         Candidate {
             name: "policy",
@@ -100,6 +101,11 @@ pub fn run(
             name: "finetuned",
             policy: &tuned,
             fingerprint: tuned.fingerprint()?,
+        },
+        Candidate {
+            name: "member",
+            policy: &member,
+            fingerprint: member.fingerprint()?,
         },
     ];
     let rows = eval::run(base, &s.eval, &dir.join("eval"), &candidates, &|k| {
@@ -254,6 +260,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let _ = writeln!(md, "|---|---|---|---|---|---|---|");
     let names = [
         ("policy", "policy (distilled), one rollout"),
+        ("member", "its first network alone, one rollout"),
         ("finetuned", "policy (fine-tuned), one rollout"),
         ("random", "random Θ, one rollout"),
         ("optimiser", "per-scene optimiser, full budget"),
@@ -305,6 +312,14 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         "- **Within 2× the optimiser's dose error at 1/30 of its compute:** {:.2}× its error ({:.3} g against {:.3} g) at {:.3} of its compute (1/{:.0}) — {}.",
         ratio, mean(&pol), mean(&optm), compute, 1.0 / compute, verdict(ratio <= 2.0 && compute <= 1.0 / 30.0 + 1e-9)
     );
+    let one = eval::errors(rows, "member");
+    if !one.is_empty() {
+        let _ = writeln!(
+            md,
+            "- What the ensemble buys: its first network alone misses by {:.3} g, the ensemble of {} by {:.3} g (p = {} that the ensemble is better).",
+            mean(&one), s.train.members, mean(&pol), p_text(wilcoxon_less(&pol, &one))
+        );
+    }
     let rep = eval::errors(rows, "repacked");
     let _ = writeln!(
         md,
