@@ -142,7 +142,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
         md,
         "# A skill policy over randomised scenes (seed B's Sim2Real step)\n"
     );
-    let _ = writeln!(md, "Regenerate: `{command}` (about an hour and a half on this machine from scratch: 46 min for the dataset, 27 for the held-out optimiser; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
+    let _ = writeln!(md, "Regenerate: `{command}` (about two and a half hours on this machine from scratch: 92 min for the dataset, 27 for the held-out optimiser, 15 for the fine-tune; it keeps every rollout's result under its `--out` and resumes after a kill).  ");
     let _ = writeln!(md, "Machine: {machine}.\n");
     let r = scene.randomize.as_ref();
     let range = |v: Option<(f64, f64)>, scale: f64, unit: &str| {
@@ -242,7 +242,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let final_ = o.iterations.last().map_or(f64::NAN, |i| i.mean_reward);
     let _ = writeln!(
         md,
-        "- **Fine-tuned:** REINFORCE from the distilled network, a Gaussian of σ = {} around its depth, episodes in mirrored pairs on one scene, each the other's baseline (seed B's smoothed gradient), reward −L (the dosing loss), {} iterations of {} episodes on freshly drawn scenes, neither the dataset's nor the held-out ones (AdamW, lr {}): {} rollouts, {:.2} G particle-substeps. The batch's mean reward went from {:.4} (first) to {:.4} (last); the batches draw different scenes, so the held-out test below is what decides.\n",
+        "- **Fine-tuned:** REINFORCE from the distilled ensemble (every member moves with the mean), a Gaussian of σ = {} around its depth, episodes in mirrored pairs on one scene, each the other's baseline (seed B's smoothed gradient), reward −L (the dosing loss), {} iterations of {} episodes on freshly drawn scenes, neither the dataset's nor the held-out ones (AdamW, lr {}): {} rollouts, {:.2} G particle-substeps. The batch's mean reward went from {:.4} (first) to {:.4} (last); the batches draw different scenes, so the held-out test below is what decides.\n",
         f.sigma, f.iterations, f.batch, f.lr, f.iterations * f.batch, o.finetune_cost / 1e9, first, final_
     );
     let _ = writeln!(md, "![training and fine-tuning curves](policy.svg)\n");
