@@ -8,6 +8,7 @@
 //! fine-tune replays what it ran (the draws follow the seed) and continues.
 
 use super::dataset::{draw_scene, problem_of, spec_of};
+use super::knob::KNOB;
 use super::net::Policy;
 use super::reinforce::{finetune, Iteration, ReinforceConfig};
 use crate::scene::randomize::Draw;
@@ -58,12 +59,13 @@ pub fn finetune_scenes(
     let reward = |it: usize, slot: usize, ctx: usize, a: &[f64]| -> anyhow::Result<f64> {
         let path = dir.join(format!("episode-{it}-{slot}.json"));
         let draw = &contexts[ctx].0;
-        let (problem, _) = problem_of(base, draw)?;
-        let theta = super::knob::family(&problem, draw, a[0]);
+        // The draw and the knob fix Θ, so a kept episode is checked without building its scene.
         let e = super::file::kept(
             &path,
-            |e: &Episode| e.context == ctx && e.theta == theta && e.draw == *draw,
+            |e: &Episode| e.context == ctx && e.theta[KNOB] == a[0] && e.draw == *draw,
             || {
+                let (problem, _) = problem_of(base, draw)?;
+                let theta = super::knob::family(&problem, draw, a[0]);
                 let o = problem.evaluate(theta, false, true)?;
                 let e = Episode {
                     draw: contexts[ctx].0.clone(),
