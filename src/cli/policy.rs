@@ -6,7 +6,6 @@ use anyhow::Result;
 use powderlab::policy::dataset::{self, Config};
 use powderlab::policy::eval::{self, Candidate, EvalConfig};
 use powderlab::policy::features::layout;
-use powderlab::policy::knob;
 use powderlab::policy::net::{self, Policy, TrainConfig};
 use powderlab::policy::reinforce::{self, ReinforceConfig};
 use powderlab::policy::tune;
@@ -246,7 +245,7 @@ fn finetune_cmd(f: FinetuneArgs) -> Result<()> {
     let scene = Scene::load(&f.scene)?;
     dataset::spec_of(&scene)?;
     let distilled = f.dir.join("policy.safetensors");
-    let policy = Policy::load(&distilled, &layout(), knob::OUTPUTS)?;
+    let policy = Policy::load(&distilled, &layout(), net::OUTPUTS)?;
     let cfg = ReinforceConfig {
         iterations: f.iterations,
         batch: f.batch,
@@ -295,7 +294,7 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
     for name in ["policy", "finetuned"] {
         let path = e.dir.join(format!("{name}.safetensors"));
         if name == "policy" || path.exists() {
-            let p = Policy::load(&path, &layout(), knob::OUTPUTS)?;
+            let p = Policy::load(&path, &layout(), net::OUTPUTS)?;
             let fp = p.fingerprint()?;
             loaded.push((name, p, fp));
         }
@@ -340,10 +339,10 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
 fn apply_cmd(a: ApplyArgs) -> Result<()> {
     let scene = Scene::load(&a.scene)?;
     let spec = dataset::spec_of(&scene)?;
-    let policy = Policy::load(&a.policy, &layout(), knob::OUTPUTS)?;
+    let policy = Policy::load(&a.policy, &layout(), net::OUTPUTS)?;
     let draw = spec.base(&scene);
     let (problem, f) = dataset::problem_of(&scene, &draw)?;
-    let theta = knob::act(&policy, &problem, &draw, &f)?;
+    let theta = policy.theta(&problem, &draw, &f)?;
     println!(
         "theta: ({:.4}, {:.4}, {:.4}, {:.4}, {:.4})",
         theta[0], theta[1], theta[2], theta[3], theta[4]

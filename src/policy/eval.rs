@@ -282,7 +282,7 @@ pub fn run(
                 )?,
             ];
             for (k, c) in candidates.iter().enumerate() {
-                let theta = super::knob::act(c.policy, &problem, &d, &f)?;
+                let theta = c.policy.theta(&problem, &d, &f)?;
                 trials.push(super::file::kept(
                     &sd.join(format!("{}-{}.json", c.name, c.fingerprint)),
                     |_| true,

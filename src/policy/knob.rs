@@ -21,7 +21,6 @@
 //! M, so it is the label of the same scene with target M (the target does not change the
 //! physics). [`crate::policy::dataset`] keeps these as extra samples at no extra rollout.
 
-use super::net::Policy;
 use crate::optim::line::{self, Budget, Probe, SKILL_REPEATABILITY};
 use crate::optim::problem::{Outcome, Problem};
 use crate::optim::report::BACKWARD_COST;
@@ -53,26 +52,6 @@ pub fn family(problem: &Problem, d: &Draw, s: f64) -> [f64; 5] {
     t[KNOB] = s.clamp(-1.0, 1.0);
     t[3] = transport(problem, d);
     t
-}
-
-/// The outputs of a dosing policy: the knob alone.
-pub const OUTPUTS: usize = 1;
-
-/// The dosing policy's Θ on scene `d` (with `features`): the family's member at the network's
-/// knob.
-pub fn act(
-    policy: &Policy,
-    problem: &Problem,
-    d: &Draw,
-    features: &[f64],
-) -> anyhow::Result<[f64; 5]> {
-    let out = policy.act(features)?;
-    anyhow::ensure!(
-        out.len() == OUTPUTS,
-        "a policy of {} outputs; a dosing policy gives the knob alone",
-        out.len()
-    );
-    Ok(family(problem, d, out[0]))
 }
 
 /// The search's rollouts, in order: each knob value and its outcome.

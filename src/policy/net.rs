@@ -19,6 +19,8 @@
 use super::dataset::Sample;
 use super::knob::KNOB;
 use crate::optim::mlp::Mlp;
+use crate::optim::problem::Problem;
+use crate::scene::randomize::Draw;
 use crate::util::SplitMix64;
 use anyhow::Context;
 use candle_core::{Device, Tensor, Var};
@@ -83,6 +85,9 @@ impl Default for TrainConfig {
 /// 0.1 g"), and above what the grains' packing alone costs a known answer (0.07 g on the held-out
 /// scenes, docs/results/policy.md). The search's labels close far inside it (median 0.01 g).
 pub const LABEL_TOLERANCE_G: f64 = 0.1;
+
+/// The outputs of a dosing policy: the knob alone.
+pub const OUTPUTS: usize = 1;
 
 /// The default [`TrainConfig::members`]: the usual size of a deep ensemble; most of the
 /// variance a mean removes is gone by five.
@@ -164,6 +169,18 @@ impl Policy {
             hidden: self.hidden,
             layout: self.layout.clone(),
         })
+    }
+
+    /// A dosing policy's Θ on scene `d` (with `features`): the knob family's member at the
+    /// network's knob.
+    pub fn theta(&self, problem: &Problem, d: &Draw, features: &[f64]) -> anyhow::Result<[f64; 5]> {
+        let out = self.act(features)?;
+        anyhow::ensure!(
+            out.len() == OUTPUTS,
+            "a policy of {} outputs; a dosing policy gives the knob alone",
+            out.len()
+        );
+        Ok(super::knob::family(problem, d, out[0]))
     }
 
     /// Every member's weights and biases.

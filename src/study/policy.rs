@@ -72,11 +72,7 @@ pub fn run(
     let distilled = dir.join("policy.safetensors");
     policy.save(&distilled)?;
     let fp = policy.fingerprint()?;
-    let tuned = Policy::load(
-        &distilled,
-        &features::layout(),
-        crate::policy::knob::OUTPUTS,
-    )?;
+    let tuned = Policy::load(&distilled, &features::layout(), net::OUTPUTS)?;
     let iters = s.finetune.iterations;
     let contexts =
         tune::fresh_contexts(base, s.dataset.seed, (iters * s.finetune.batch / 2).max(1))?;
