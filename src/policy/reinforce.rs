@@ -3,18 +3,18 @@
 //! The policy is a Gaussian of fixed spread σ around the network's outputs (the dosing policy's
 //! one output is the knob of [`super::knob`]). Each iteration draws half a batch of contexts
 //! (scenes) and, for each, a mirrored pair of episodes `a± = μ(f) ± σε` (clamped into [−1, 1]
-//! when run), with rewards `R±`. Each episode's baseline
-//! is its partner's reward, `A± = ±(R₊ − R₋)/2`: the scenes of a batch differ in how hard they
-//! are far more than two actions on one scene differ, so a baseline taken across scenes (the
-//! batch mean) buries the action's effect under the scene's. Mirrored sampling keeps the
-//! estimate unbiased: summed over a pair, `A₊∇log p(a₊) + A₋∇log p(a₋) = (R₊ − R₋) ε/σ`, the
-//! central-difference estimate of the gradient of the Gaussian-smoothed reward (seed B's eq. 6;
-//! Salimans et al. 2017). The advantages are divided by their spread over the batch. One
-//! AdamW step descends `−mean(A · log N(a; μ(f), σ²))`.
+//! when run), with rewards `R±`. Each episode's baseline is its partner's reward,
+//! `A± = ±(R₊ − R₋)/2`: the scenes of a batch differ in how hard they are far more than two
+//! actions on one scene differ, so a baseline taken across scenes (the batch mean) buries the
+//! action's effect under the scene's. Mirrored sampling keeps the estimate unbiased: summed over
+//! a pair, `A₊∇log p(a₊) + A₋∇log p(a₋) = (R₊ − R₋) ε/σ`, the central-difference estimate of
+//! the gradient of the Gaussian-smoothed reward (seed B's eq. 6; Salimans et al. 2017). The
+//! advantages are divided by their spread over the batch. One AdamW step descends
+//! `−mean(A · log N(a; μ(f), σ²))`.
 //!
-//! `reward(iteration, slot, context, action)` is the caller's: a rollout's −L, or a toy's. A caller
-//! that keeps each (iteration, slot)'s reward can replay a killed run exactly, since the draws
-//! follow the seed alone.
+//! `reward(iteration, slot, context, action)` is the caller's: a rollout's −L, or a toy's. A
+//! caller that keeps each (iteration, slot)'s reward can replay a killed run exactly, since the
+//! draws follow the seed alone.
 
 use super::net::Policy;
 use crate::util::SplitMix64;

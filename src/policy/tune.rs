@@ -1,8 +1,9 @@
 //! The fine-tune on simulated scenes: REINFORCE ([`super::reinforce`]) whose episodes are
 //! rollouts of freshly drawn scenes ([`fresh_contexts`]), rewarded with −L (the scene's dosing
 //! loss). The Gaussian lives on the policy's knob; an episode runs the family's Θ at the drawn
-//! knob ([`super::knob::family`]). Not the dataset's scenes: the distilled network already fits their labels, so there
-//! the rewards could only teach it what it knows; new scenes are where it makes its errors.
+//! knob ([`super::knob::family`]). Not the dataset's scenes: the distilled network already fits
+//! their labels, so there the rewards could only teach it what it knows; new scenes are where it
+//! makes its errors.
 //!
 //! Each episode's reward is kept in `dir/episode-I-S.json` with its scene and Θ, so a killed
 //! fine-tune replays what it ran (the draws follow the seed) and continues.
