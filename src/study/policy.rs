@@ -228,7 +228,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     );
     let _ = writeln!(
         md,
-        "- **The distilled policy:** its members' training MSE at the end {:.5} and lowest validation MSE {:.5} (means over the members); the ensemble's validation MSE {:.5}.",
+        "- **The distilled policy:** its members' mean training MSE at the end {:.5}, and their mean validation MSE at its lowest epoch {:.5} (each member keeps its own best epoch); the ensemble's validation MSE {:.5}.",
         last.map_or(f64::NAN, |p| p.train_mse),
         best_val,
         o.val_mse
