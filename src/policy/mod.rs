@@ -16,5 +16,6 @@ pub mod features;
 pub mod file;
 pub mod knob;
 pub mod net;
+pub mod pour;
 pub mod reinforce;
 pub mod tune;
