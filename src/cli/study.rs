@@ -143,12 +143,15 @@ pub fn run(a: Args) -> Result<()> {
     if a.study == "policy" {
         return policy_cmd(a);
     }
+    if a.study == "pour" {
+        return pour_cmd(a);
+    }
     if a.study == "reliability" {
         return reliability_cmd(a);
     }
     if a.study != "error-vs-time" {
         bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration, demonstration, planning, policy or reliability",
+            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration, demonstration, planning, policy, pour or reliability",
             a.study
         );
     }
@@ -708,6 +711,70 @@ fn policy_cmd(a: Args) -> Result<()> {
     );
     Ok(())
 }
+
+/// `powderlab study pour`: the gravimetric pour on the policy page's held-out draws, at dx =
+/// 5 mm (20) and 2.5 mm (the first 6).
+fn pour_cmd(a: Args) -> Result<()> {
+    use powderlab::study::pour;
+    let load = |p: &str| powderlab::scene::Scene::load(p);
+    let coarse_scene = load("scenes/policy_dosing.ron")?;
+    let fine_scene = load("scenes/policy_dosing_fine.ron")?;
+    let settings = pour::Settings {
+        scenes: 20,
+        fine_scenes: 6,
+        pour: Default::default(),
+        seed: 0,
+    };
+    let start = Instant::now();
+    let dir = a.out.join("pour");
+    let mut rows = Vec::new();
+    for (scene, n, sub) in [
+        (&coarse_scene, settings.scenes, "dx-5mm"),
+        (&fine_scene, settings.fine_scenes, "dx-2.5mm"),
+    ] {
+        let pb = super::bar(n as u64, a.json);
+        pb.set_message(sub.to_string());
+        let r = pour::run(scene, &settings, n, &dir.join(sub), &|k| {
+            pb.set_position(k as u64)
+        })?;
+        pb.finish_and_clear();
+        rows.push(r);
+    }
+    let policy = pour::policy_trials(&a.out.join("policy"));
+    let command = format!("powderlab study pour --out {}", a.out.display());
+    let md = pour::report(
+        &rows[0],
+        &rows[1],
+        policy.as_deref(),
+        &settings,
+        &command,
+        &powderlab::study::optimizers::machine(),
+        POUR_MINUTES,
+        match coarse_scene
+            .colliders
+            .iter()
+            .find_map(|c| c.control.as_ref())
+        {
+            Some(powderlab::scene::ControlSpec::Skill(sk)) => sk.angular_speed_deg,
+            _ => bail!("scenes/policy_dosing.ron: its spoon has no skill"),
+        },
+    );
+    powderlab::util::create_output_dir(&a.results, "--results")?;
+    let (c, f) = pour::shown(&rows[0], &rows[1]).unzip();
+    pour::figure(&a.results.join("pour.svg"), c, f)?;
+    powderlab::util::write_atomic(&a.results.join("pour.md"), md.as_bytes())?;
+    print_page(
+        &a,
+        &md,
+        start,
+        "pour.md and pour.svg",
+        json!({ "scenes": rows[0].len(), "fine_scenes": rows[1].len() }),
+    );
+    Ok(())
+}
+
+/// `study pour`'s run time from scratch on this project's 2-core machine (min), for its page.
+const POUR_MINUTES: f64 = 9.0;
 
 /// `powderlab study calibration`: recovery of known parameters from noisy synthetic
 /// observations, Adam and BFGS on the adjoint against CMA-ES at equal compute.

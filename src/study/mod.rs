@@ -29,6 +29,7 @@ pub mod optimizers;
 pub mod planning;
 pub mod plot;
 pub mod policy;
+pub mod pour;
 pub mod push;
 pub mod refine;
 pub mod reliability;
