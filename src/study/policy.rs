@@ -324,6 +324,10 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     );
     let _ = writeln!(
         md,
+        "- Whether a loop closed within the one rollout does better, the spoon's pour weighed by a load cell on these draws: [pour.md](pour.md) (`powderlab study pour`)."
+    );
+    let _ = writeln!(
+        md,
         "- **The fine-tune improves on the distilled policy:** {:.3} g against {:.3} g, p = {} — {}.",
         mean(&tun), mean(&pol), p_text(p_tuned), verdict(mean(&tun) < mean(&pol) && p_tuned.is_some_and(|p| p < 0.05))
     );
