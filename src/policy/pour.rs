@@ -5,14 +5,19 @@
 //! grains' packing, which no policy sees (docs/results/policy.md: the optimiser's own Θ on a
 //! repacked powder misses by 0.07 g, three grains). A lab robot doses against a balance
 //! instead. Here the spoon scoops more than the dose, is carried over the target cup as the
-//! skill carries it, and then tilts about the skill's pour axis at [`Gravimetric::speed_deg`]
-//! while a load cell at the wrist reads what the spoon still holds. When the mass that has left
-//! the spoon reaches the dose less [`Gravimetric::lead_g`] (the powder already on its way when
-//! the spoon turns back), the spoon turns back upright at the skill's angular speed; what it
-//! still holds stays in it. The skill's settle steps follow.
+//! skill carries it, and then tilts about the skill's pour axis (at the skill's angular speed
+//! up to [`Gravimetric::fast_to_deg`], at [`Gravimetric::speed_deg`] past it) while a load cell
+//! at the wrist reads what the spoon still holds. When the mass that has left the spoon, plus
+//! [`Gravimetric::lead_steps`] steps of its current outflow (the powder still to leave while
+//! the spoon turns back), reaches the dose, the spoon turns back upright at the skill's angular
+//! speed; what it still holds stays in it. The skill's settle steps follow.
 //!
-//! **The load cell** reads the grains within `bowl_radius + dx` of the bowl's centre: the bowl
-//! and the heap on it, not a grain that has left the lip by a cell.
+//! **The load cell** reads the grains within `bowl_radius + dx` of the bowl's centre (the
+//! spoon's frame origin): the bowl and the heap on it, not a grain that has left the lip by a
+//! cell.
+//!
+//! **It does not meter** (docs/results/pour.md): the powder leaves in bursts and keeps leaving
+//! after the spoon turns back, so the loop doses worse than the open-loop policy.
 //!
 //! The scoop, lift and carry are the skill's own, so a pour differs from the open-loop rollout
 //! only after the carry. The loop makes the rollout's controls depend on its state, so it has
