@@ -2,6 +2,7 @@
 //! cell read, a dose of nothing pours nothing, and settings it cannot run are refused.
 #![cfg(feature = "lab")]
 
+use powderlab::optim::problem::Problem;
 use powderlab::policy::dataset::{problem_of, spec_of};
 use powderlab::policy::knob;
 use powderlab::policy::pour::{rollout, Gravimetric};
@@ -22,16 +23,18 @@ const POUR_GRAINS: f64 = 2.0;
 /// below the load (a twentieth of it), where any tilt that poured would move most of it.
 const SHED_FRACTION: f64 = 0.05;
 
-fn scene() -> Scene {
-    Scene::load(common::scene_path("policy_dosing.ron")).unwrap()
+/// `policy_dosing.ron` as written (its base draw), and the family's Θ at scoop depth `s`.
+fn problem_at(s: f64) -> (Problem, [f64; 5]) {
+    let base = Scene::load(common::scene_path("policy_dosing.ron")).unwrap();
+    let d = spec_of(&base).unwrap().base(&base);
+    let (problem, _) = problem_of(&base, &d).unwrap();
+    let theta = knob::family(&problem, &d, s);
+    (problem, theta)
 }
 
 #[test]
 fn the_pour_adds_what_the_load_cell_read_and_a_zero_dose_pours_nothing() {
-    let base = scene();
-    let d = spec_of(&base).unwrap().base(&base);
-    let (problem, _) = problem_of(&base, &d).unwrap();
-    let theta = knob::family(&problem, &d, 1.0);
+    let (problem, theta) = problem_at(1.0);
     let g = Gravimetric::default();
     // A dose no spoon holds: the spoon tilts to its limit and turns back.
     let (full, tf) = rollout(&problem, theta, 100.0, &g).unwrap();
@@ -66,10 +69,7 @@ fn the_pour_adds_what_the_load_cell_read_and_a_zero_dose_pours_nothing() {
 
 #[test]
 fn settings_the_loop_cannot_run_are_refused() {
-    let base = scene();
-    let d = spec_of(&base).unwrap().base(&base);
-    let (problem, _) = problem_of(&base, &d).unwrap();
-    let theta = knob::family(&problem, &d, 0.0);
+    let (problem, theta) = problem_at(0.0);
     for g in [
         Gravimetric {
             speed_deg: 0.0,

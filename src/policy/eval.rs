@@ -214,19 +214,7 @@ pub fn run(
     let cfg_path = dir.join("eval-config.json");
     let hash = crate::optim::fnv1a(&base.source);
     let stamp = serde_json::json!({ "config": cfg, "scene_hash": hash });
-    match std::fs::read_to_string(&cfg_path) {
-        Ok(t) if serde_json::from_str::<serde_json::Value>(&t).ok().as_ref() != Some(&stamp) => {
-            anyhow::bail!(
-                "{}: this folder holds an evaluation of other settings or another scene file; \
-                 rerun with the same ones, or choose another --dir",
-                cfg_path.display()
-            )
-        }
-        Ok(_) => {}
-        Err(_) => {
-            crate::util::write_atomic(&cfg_path, serde_json::to_string_pretty(&stamp)?.as_bytes())?
-        }
-    }
+    super::file::stamped(&cfg_path, &stamp, "an evaluation", "--dir")?;
     let spec = spec_of(base)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
     (0..cfg.scenes)

@@ -50,3 +50,28 @@ pub fn kept<T: serde::Serialize + serde::de::DeserializeOwned>(
     crate::util::write_atomic(path, serde_json::to_string(&t)?.as_bytes())?;
     Ok(t)
 }
+
+/// Writes `stamp` (what a run's results depend on) to `path`, or, when `path` holds another,
+/// refuses the folder: its results, `what`, belong to other settings; `flag` names the option
+/// that chooses the folder.
+pub fn stamped(
+    path: &Path,
+    stamp: &serde_json::Value,
+    what: &str,
+    flag: &str,
+) -> anyhow::Result<()> {
+    match std::fs::read_to_string(path) {
+        Ok(t) if serde_json::from_str::<serde_json::Value>(&t).ok().as_ref() != Some(stamp) => {
+            anyhow::bail!(
+                "{}: this folder holds {what} of other settings or another scene file; rerun \
+                 with the same ones, or choose another {flag}",
+                path.display()
+            )
+        }
+        Ok(_) => Ok(()),
+        Err(_) => Ok(crate::util::write_atomic(
+            path,
+            serde_json::to_string_pretty(stamp)?.as_bytes(),
+        )?),
+    }
+}

@@ -79,21 +79,7 @@ pub fn run(
         "seed": s.seed,
         "scene_hash": crate::optim::fnv1a(&base.source),
     });
-    let stamp_path = dir.join("pour-config.json");
-    match std::fs::read_to_string(&stamp_path) {
-        Ok(t) if serde_json::from_str::<serde_json::Value>(&t).ok().as_ref() != Some(&stamp) => {
-            anyhow::bail!(
-                "{}: this folder holds pours of other settings or another scene file; rerun \
-                 with the same ones, or choose another --out",
-                stamp_path.display()
-            )
-        }
-        Ok(_) => {}
-        Err(_) => crate::util::write_atomic(
-            &stamp_path,
-            serde_json::to_string_pretty(&stamp)?.as_bytes(),
-        )?,
-    }
+    crate::policy::file::stamped(&dir.join("pour-config.json"), &stamp, "pours", "--out")?;
     let done = std::sync::atomic::AtomicUsize::new(0);
     (0..n)
         .into_par_iter()
@@ -145,12 +131,11 @@ pub fn policy_trials(policy_dir: &Path) -> Option<Vec<Trial>> {
 }
 
 fn mean(v: &[f64]) -> f64 {
-    v.iter().sum::<f64>() / v.len().max(1) as f64
+    super::planning::mean_std(v).0
 }
 
 fn sd(v: &[f64]) -> f64 {
-    let m = mean(v);
-    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len().max(2) - 1) as f64).sqrt()
+    super::planning::mean_std(v).1
 }
 
 /// The page; `turn_back_deg` is the skill's angular speed, at which the spoon turns back.
