@@ -83,6 +83,10 @@ fn settings_the_loop_cannot_run_are_refused() {
             max_deg: 200.0,
             ..Default::default()
         },
+        Gravimetric {
+            turn_back_deg: Some(0.0),
+            ..Default::default()
+        },
     ] {
         let e = rollout(&problem, theta, 1.0, &g).unwrap_err().to_string();
         assert!(

@@ -10,7 +10,8 @@
 //! at the wrist reads what the spoon still holds. When the mass that has left the spoon, plus
 //! [`Gravimetric::lead_steps`] steps of its current outflow (the powder still to leave while
 //! the spoon turns back), reaches the dose, the spoon turns back upright at the skill's angular
-//! speed; what it still holds stays in it. The skill's settle steps follow.
+//! speed (or [`Gravimetric::turn_back_deg`]); what it still holds stays in it. The skill's
+//! settle steps follow.
 //!
 //! **The load cell** reads the grains within `bowl_radius + dx` of the bowl's centre (the
 //! spoon's frame origin): the bowl and the heap on it, not a grain that has left the lip by a
@@ -43,6 +44,9 @@ pub struct Gravimetric {
     /// The spoon turns back when the mass poured plus this many steps of the current outflow
     /// reaches the dose: the powder that still leaves while it turns back.
     pub lead_steps: f64,
+    /// How fast the spoon turns back (degrees/s); `None`, the skill's angular speed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub turn_back_deg: Option<f64>,
     /// The most the spoon tilts (degrees).
     pub max_deg: f64,
 }
@@ -59,6 +63,7 @@ impl Default for Gravimetric {
             fast_to_deg: 60.0,
             lead_steps: 3.0,
             max_deg: 95.0,
+            turn_back_deg: None,
         }
     }
 }
@@ -73,15 +78,17 @@ impl Gravimetric {
             && self.lead_steps.is_finite()
             && self.fast_to_deg >= 0.0
             && self.max_deg > 0.0
-            && self.max_deg <= 180.0;
+            && self.max_deg <= 180.0
+            && self.turn_back_deg.is_none_or(|v| v > 0.0 && v.is_finite());
         anyhow::ensure!(
             ok,
-            "gravimetric pour: speed {}°/s, lead {} steps, fast to {}°, up to {}°: the speed \
-             must be positive, the lead at least 0 and the limit in (0°, 180°]",
+            "gravimetric pour: speed {}°/s, lead {} steps, fast to {}°, up to {}°, back at {:?}°/s: \
+             the speeds must be positive, the lead at least 0 and the limit in (0°, 180°]",
             self.speed_deg,
             self.lead_steps,
             self.fast_to_deg,
-            self.max_deg
+            self.max_deg,
+            self.turn_back_deg
         );
         Ok(())
     }
@@ -138,7 +145,8 @@ pub fn rollout(
     };
     let (dt, settle) = (problem.scene.simulation.dt, sk.settle_steps);
     let axis = glam::DVec3::from(sk.pour_axis).normalize();
-    let w_back = sk.angular_speed_deg.to_radians() * dt;
+    let w_fast = sk.angular_speed_deg.to_radians() * dt;
+    let w_back = g.turn_back_deg.map_or(w_fast, |v| v.to_radians() * dt);
     let w = g.speed_deg.to_radians() * dt;
     let mut carry = 0;
     let mut sim = problem.simulation_with(theta, true, |c, phases| {
@@ -162,7 +170,7 @@ pub fn rollout(
         let rate = trace.steps.last().map_or(0.0, |l| (poured - l.1).max(0.0));
         trace.steps.push((angle.to_degrees(), poured));
         let w = if angle < g.fast_to_deg.to_radians() {
-            w_back
+            w_fast
         } else {
             w
         };
