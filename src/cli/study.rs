@@ -723,6 +723,7 @@ fn pour_cmd(a: Args) -> Result<()> {
         scenes: 20,
         fine_scenes: 6,
         pour: Default::default(),
+        faster_turn_back_deg: 720.0,
         seed: 0,
     };
     let start = Instant::now();
@@ -740,11 +741,29 @@ fn pour_cmd(a: Args) -> Result<()> {
         pb.finish_and_clear();
         rows.push(r);
     }
+    let faster = pour::Settings {
+        pour: powderlab::policy::pour::Gravimetric {
+            turn_back_deg: Some(settings.faster_turn_back_deg),
+            ..settings.pour
+        },
+        ..settings
+    };
+    let pb = super::bar(settings.scenes as u64, a.json);
+    pb.set_message("dx-5mm, turning back faster");
+    let faster_rows = pour::run(
+        &coarse_scene,
+        &faster,
+        settings.scenes,
+        &dir.join(format!("dx-5mm-back-{}", settings.faster_turn_back_deg)),
+        &|k| pb.set_position(k as u64),
+    )?;
+    pb.finish_and_clear();
     let policy = pour::policy_trials(&a.out.join("policy"));
     let command = format!("powderlab study pour --out {}", a.out.display());
     let md = pour::report(
         &rows[0],
         &rows[1],
+        &faster_rows,
         policy.as_deref(),
         &settings,
         &command,

@@ -5,7 +5,8 @@
 //! of `policy_dosing_fine.ron` (dx = 2.5 mm), the spoon scoops at the family's deepest setting
 //! ([`crate::policy::knob::family`] at +1: the most powder to pour from), is carried over the
 //! target cup, and pours under the gravimetric loop toward the draw's target. Each draw's result
-//! is kept in `dir/<resolution>/scene-J.json`, so a killed study resumes.
+//! is kept in `dir/<resolution>/scene-J.json`, so a killed study resumes. A variant at dx = 5 mm
+//! turns the spoon back faster than the skill's angular speed.
 //!
 //! The open-loop reference is the distilled policy of `study policy` on the same draws at dx = 5
 //! mm, read from `dir/../policy/eval` when that study has run in the same `--out`.
@@ -60,6 +61,8 @@ pub struct Settings {
     /// The first of them again at dx = 2.5 mm.
     pub fine_scenes: usize,
     pub pour: Gravimetric,
+    /// The variant at dx = 5 mm that turns back this fast (degrees/s).
+    pub faster_turn_back_deg: f64,
     /// The policy study's dataset seed (the held-out stream is derived from it).
     pub seed: u64,
 }
@@ -143,6 +146,7 @@ fn sd(v: &[f64]) -> f64 {
 pub fn report(
     coarse: &[Row],
     fine: &[Row],
+    faster: &[Row],
     policy: Option<&[Trial]>,
     s: &Settings,
     command: &str,
@@ -162,8 +166,13 @@ pub fn report(
     let _ = writeln!(md, "**Draws.** The policy page's held-out draws: {} of `scenes/policy_dosing.ron` (dx = 5 mm) and the first {} again from `scenes/policy_dosing_fine.ron`, the same scenes at dx = 2.5 mm (8× the particles).\n", coarse.len(), fine.len());
     let _ = writeln!(md, "| pour | draws | dose error (g), mean ± sd | median | within 0.1 g | after the turn (g), mean | rollout (s) | particle-substeps |");
     let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
+    let faster_name = format!(
+        "gravimetric, dx = 5 mm, turning back at {}°/s",
+        s.faster_turn_back_deg
+    );
     for (name, rows) in [
         ("gravimetric, dx = 5 mm", coarse),
+        (faster_name.as_str(), faster),
         ("gravimetric, dx = 2.5 mm", fine),
     ] {
         if rows.is_empty() {
@@ -244,7 +253,17 @@ pub fn report(
                 turned.iter().map(|r| format!("{:.3}", r.after_turn_g().unwrap_or(f64::NAN))).collect::<Vec<_>>().join(" and "),
                 turned.iter().map(|r| format!("{:+.3} g", r.error_g())).collect::<Vec<_>>().join(" and "));
         }
-        let _ = writeln!(md, "What would meter it: an actuator whose outflow stops when it stops, such as a tapped or vibrated spoon or a screw feeder, or a spoon that turns back much faster than the skill's {turn_back_deg}°/s. With a tilting spoon, feedback that reaches [policy.md](policy.md)'s target has to come between scoops, for instance a second, small scoop that tops up what the balance reads (not built).\n");
+        if faster.len() == coarse.len() && !faster.is_empty() {
+            let fe: Vec<f64> = faster.iter().map(|r| r.error_g().abs()).collect();
+            let fa: Vec<f64> = faster.iter().filter_map(Row::after_turn_g).collect();
+            let p = wilcoxon_less(&fe, &ge);
+            let helps = p.is_some_and(|p| p < super::optimizers::ALPHA);
+            let _ = writeln!(md, "Turning back {:.0}× faster, at {}°/s instead of the skill's {turn_back_deg}°/s, {}: {:.3} g against {:.3} g on the same draws (p = {} that it is lower), {:.1}× the open-loop policy's error, with {:.3} g still leaving after the turn.\n",
+                s.faster_turn_back_deg / turn_back_deg, s.faster_turn_back_deg,
+                if helps { "helps, but not enough" } else { "does not help" },
+                mean(&fe), mean(&ge), p_text(p), mean(&fe) / mean(pe), mean(&fa));
+        }
+        let _ = writeln!(md, "What would meter it: an actuator whose outflow stops when it stops, such as a tapped or vibrated spoon or a screw feeder. With a tilting spoon, feedback that reaches [policy.md](policy.md)'s target has to come between scoops, for instance a second, small scoop that tops up what the balance reads (not built).\n");
     }
     if let Some((c, f)) = shown(coarse, fine) {
         let _ = writeln!(
