@@ -87,6 +87,10 @@ fn settings_the_loop_cannot_run_are_refused() {
             turn_back_deg: Some(0.0),
             ..Default::default()
         },
+        Gravimetric {
+            tap_mm: Some(-0.5),
+            ..Default::default()
+        },
     ] {
         let e = rollout(&problem, theta, 1.0, &g).unwrap_err().to_string();
         assert!(

@@ -47,6 +47,10 @@ pub struct Gravimetric {
     /// How fast the spoon turns back (degrees/s); `None`, the skill's angular speed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub turn_back_deg: Option<f64>,
+    /// Taps past `fast_to_deg`: the spoon drops and rises this far (mm) on alternate steps while
+    /// it tilts, and stops tapping when it turns back. `None`, no taps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tap_mm: Option<f64>,
     /// The most the spoon tilts (degrees).
     pub max_deg: f64,
 }
@@ -64,6 +68,7 @@ impl Default for Gravimetric {
             lead_steps: 3.0,
             max_deg: 95.0,
             turn_back_deg: None,
+            tap_mm: None,
         }
     }
 }
@@ -79,16 +84,19 @@ impl Gravimetric {
             && self.fast_to_deg >= 0.0
             && self.max_deg > 0.0
             && self.max_deg <= 180.0
-            && self.turn_back_deg.is_none_or(|v| v > 0.0 && v.is_finite());
+            && self.turn_back_deg.is_none_or(|v| v > 0.0 && v.is_finite())
+            && self.tap_mm.is_none_or(|v| v > 0.0 && v.is_finite());
         anyhow::ensure!(
             ok,
-            "gravimetric pour: speed {}°/s, lead {} steps, fast to {}°, up to {}°, back at {:?}°/s: \
-             the speeds must be positive, the lead at least 0 and the limit in (0°, 180°]",
+            "gravimetric pour: speed {}°/s, lead {} steps, fast to {}°, up to {}°, back at {:?}°/s, taps \
+             of {:?} mm: the speeds and taps must be positive, the lead at least 0 and the limit \
+             in (0°, 180°]",
             self.speed_deg,
             self.lead_steps,
             self.fast_to_deg,
             self.max_deg,
-            self.turn_back_deg
+            self.turn_back_deg,
+            self.tap_mm
         );
         Ok(())
     }
@@ -161,7 +169,7 @@ pub fn rollout(
         ..Default::default()
     };
     let max = g.max_deg.to_radians();
-    let (mut angle, mut turning) = (0.0_f64, false);
+    let (mut angle, mut turning, mut tapped) = (0.0_f64, false, 0usize);
     let mut steps = carry;
     // Bounded: the tilt rises to `max` and the return takes as long at the faster speed.
     let bound = carry + 2 * (max / w).ceil() as usize + 2;
@@ -182,9 +190,21 @@ pub fn rollout(
         if turning && d == 0.0 || steps >= bound {
             break;
         }
+        // Past `fast_to_deg` a tap drops the spoon one step and lifts it back the next; a tap in
+        // progress when the spoon turns back still lifts it back.
+        let y = match g.tap_mm {
+            Some(t) if !turning && angle >= g.fast_to_deg.to_radians() && tapped % 2 == 0 => {
+                -t * 1e-3
+            }
+            Some(t) if tapped % 2 == 1 => t * 1e-3,
+            _ => 0.0,
+        };
+        if y != 0.0 {
+            tapped += 1;
+        }
         angle += d;
         let r = axis * d;
-        push_control(&mut sim, ti, [0.0, 0.0, 0.0, r.x, r.y, r.z]);
+        push_control(&mut sim, ti, [0.0, y, 0.0, r.x, r.y, r.z]);
         sim.step().with_context(context)?;
         steps += 1;
     }
