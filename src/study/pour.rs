@@ -5,8 +5,8 @@
 //! of `policy_dosing_fine.ron` (dx = 2.5 mm), the spoon scoops at the family's deepest setting
 //! ([`crate::policy::knob::family`] at +1: the most powder to pour from), is carried over the
 //! target cup, and pours under the gravimetric loop toward the draw's target. Each draw's result
-//! is kept in `dir/<resolution>/scene-J.json`, so a killed study resumes. A variant at dx = 5 mm
-//! turns the spoon back faster than the skill's angular speed.
+//! is kept in `dir/<resolution>/scene-J.json`, so a killed study resumes. Two variants at dx = 5
+//! mm: one turns the spoon back faster than the skill's angular speed, one taps it.
 //!
 //! The open-loop reference is the distilled policy of `study policy` on the same draws at dx = 5
 //! mm, read from `dir/../policy/eval` when that study has run in the same `--out`.
@@ -63,6 +63,8 @@ pub struct Settings {
     pub pour: Gravimetric,
     /// The variant at dx = 5 mm that turns back this fast (degrees/s).
     pub faster_turn_back_deg: f64,
+    /// The tapped variant at dx = 5 mm: its pour settings (a tap size, a slow creep).
+    pub tapped: Gravimetric,
     /// The policy study's dataset seed (the held-out stream is derived from it).
     pub seed: u64,
 }
@@ -147,6 +149,7 @@ pub fn report(
     coarse: &[Row],
     fine: &[Row],
     faster: &[Row],
+    tapped: &[Row],
     policy: Option<&[Trial]>,
     s: &Settings,
     command: &str,
@@ -170,9 +173,16 @@ pub fn report(
         "gravimetric, dx = 5 mm, turning back at {}°/s",
         s.faster_turn_back_deg
     );
+    let tapped_name = format!(
+        "tapped, dx = 5 mm: {} mm taps past {}°, creeping at {}°/s",
+        s.tapped.tap_mm.unwrap_or(0.0),
+        s.tapped.fast_to_deg,
+        s.tapped.speed_deg
+    );
     for (name, rows) in [
         ("gravimetric, dx = 5 mm", coarse),
         (faster_name.as_str(), faster),
+        (tapped_name.as_str(), tapped),
         ("gravimetric, dx = 2.5 mm", fine),
     ] {
         if rows.is_empty() {
@@ -263,7 +273,17 @@ pub fn report(
                 if helps { "helps, but not enough" } else { "does not help" },
                 mean(&fe), mean(&ge), p_text(p), mean(&fe) / mean(pe), mean(&fa));
         }
-        let _ = writeln!(md, "What would meter it: an actuator whose outflow stops when it stops, such as a tapped or vibrated spoon or a screw feeder. With a tilting spoon, feedback that reaches [policy.md](policy.md)'s target has to come between scoops, for instance a second, small scoop that tops up what the balance reads (not built).\n");
+        if tapped.len() == coarse.len() && !tapped.is_empty() {
+            let te: Vec<f64> = tapped.iter().map(|r| r.error_g().abs()).collect();
+            let ta: Vec<f64> = tapped.iter().filter_map(Row::after_turn_g).collect();
+            let p = wilcoxon_less(&te, &ge);
+            let beats = wilcoxon_less(&te, pe).is_some_and(|p| p < super::optimizers::ALPHA);
+            let _ = writeln!(md, "Tapping the spoon instead ({} mm down and up on alternate steps past {}°, the tilt creeping at {}°/s, up to {}°) makes the outflow gradual, and {}: {:.3} g against the plain loop's {:.3} g (p = {} that it is lower), {:.1}× the open-loop policy's error (p = {} that it is lower), with {:.3} g still leaving after the taps stop and the spoon turns back.\n",
+                s.tapped.tap_mm.unwrap_or(0.0), s.tapped.fast_to_deg, s.tapped.speed_deg, s.tapped.max_deg,
+                if beats { "beats the open-loop policy" } else { "still does not meter the dose" },
+                mean(&te), mean(&ge), p_text(p), mean(&te) / mean(pe), p_text(wilcoxon_less(&te, pe)), mean(&ta));
+        }
+        let _ = writeln!(md, "What would meter it: an actuator whose outflow stops when it stops, such as a screw feeder. With a tilting spoon, feedback that reaches [policy.md](policy.md)'s target has to come between scoops, for instance a second, small scoop that tops up what the balance reads (not built).\n");
     }
     if let Some((c, f)) = shown(coarse, fine) {
         let _ = writeln!(
