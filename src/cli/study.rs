@@ -737,57 +737,43 @@ fn pour_cmd(a: Args) -> Result<()> {
     };
     let start = Instant::now();
     let dir = a.out.join("pour");
+    let faster = powderlab::policy::pour::Gravimetric {
+        turn_back_deg: Some(settings.faster_turn_back_deg),
+        ..settings.pour
+    };
+    let back = format!("dx-5mm-back-{}", settings.faster_turn_back_deg);
     let mut rows = Vec::new();
-    for (scene, n, sub) in [
-        (&coarse_scene, settings.scenes, "dx-5mm"),
-        (&fine_scene, settings.fine_scenes, "dx-2.5mm"),
+    for (scene, g, n, sub) in [
+        (&coarse_scene, &settings.pour, settings.scenes, "dx-5mm"),
+        (
+            &fine_scene,
+            &settings.pour,
+            settings.fine_scenes,
+            "dx-2.5mm",
+        ),
+        (&coarse_scene, &faster, settings.scenes, back.as_str()),
+        (
+            &coarse_scene,
+            &settings.tapped,
+            settings.scenes,
+            "dx-5mm-tapped",
+        ),
     ] {
         let pb = super::bar(n as u64, a.json);
         pb.set_message(sub.to_string());
-        let r = pour::run(scene, &settings, n, &dir.join(sub), &|k| {
+        let r = pour::run(scene, g, settings.seed, n, &dir.join(sub), &|k| {
             pb.set_position(k as u64)
         })?;
         pb.finish_and_clear();
         rows.push(r);
     }
-    let faster = pour::Settings {
-        pour: powderlab::policy::pour::Gravimetric {
-            turn_back_deg: Some(settings.faster_turn_back_deg),
-            ..settings.pour
-        },
-        ..settings
-    };
-    let pb = super::bar(settings.scenes as u64, a.json);
-    pb.set_message("dx-5mm, turning back faster");
-    let faster_rows = pour::run(
-        &coarse_scene,
-        &faster,
-        settings.scenes,
-        &dir.join(format!("dx-5mm-back-{}", settings.faster_turn_back_deg)),
-        &|k| pb.set_position(k as u64),
-    )?;
-    pb.finish_and_clear();
-    let tapped = pour::Settings {
-        pour: settings.tapped,
-        ..settings
-    };
-    let pb = super::bar(settings.scenes as u64, a.json);
-    pb.set_message("dx-5mm, tapped");
-    let tapped_rows = pour::run(
-        &coarse_scene,
-        &tapped,
-        settings.scenes,
-        &dir.join("dx-5mm-tapped"),
-        &|k| pb.set_position(k as u64),
-    )?;
-    pb.finish_and_clear();
     let policy = pour::policy_trials(&a.out.join("policy"));
     let command = format!("powderlab study pour --out {}", a.out.display());
     let md = pour::report(
         &rows[0],
         &rows[1],
-        &faster_rows,
-        &tapped_rows,
+        &rows[2],
+        &rows[3],
         policy.as_deref(),
         &settings,
         &command,

@@ -69,10 +69,12 @@ pub struct Settings {
     pub seed: u64,
 }
 
-/// Runs (or resumes) the pours of `base` for held-out draws `0..n` in `dir`.
+/// Runs (or resumes) the pours `g` of `base` for held-out draws `0..n` of the policy study's
+/// seed `seed`, in `dir`.
 pub fn run(
     base: &Scene,
-    s: &Settings,
+    g: &Gravimetric,
+    seed: u64,
     n: usize,
     dir: &Path,
     progress: &(dyn Fn(usize) + Sync),
@@ -80,8 +82,8 @@ pub fn run(
     crate::util::create_output_dir(dir, "--out")?;
     let spec = spec_of(base)?;
     let stamp = serde_json::json!({
-        "pour": s.pour,
-        "seed": s.seed,
+        "pour": g,
+        "seed": seed,
         "scene_hash": crate::optim::fnv1a(&base.source),
     });
     crate::policy::file::stamped(&dir.join("pour-config.json"), &stamp, "pours", "--out")?;
@@ -93,10 +95,10 @@ pub fn run(
                 &dir.join(format!("scene-{j}.json")),
                 |_| true,
                 || {
-                    let d = draw_scene(spec, base, s.seed.wrapping_add(HELD_OUT_STREAM), j);
+                    let d = draw_scene(spec, base, seed.wrapping_add(HELD_OUT_STREAM), j);
                     let (problem, _) = problem_of(base, &d)?;
                     let theta = crate::policy::knob::family(&problem, &d, 1.0);
-                    let (o, t) = pour::rollout(&problem, theta, d.target_g, &s.pour)?;
+                    let (o, t) = pour::rollout(&problem, theta, d.target_g, g)?;
                     Ok(Row {
                         scene: j,
                         dx: base.simulation.dx,
