@@ -116,12 +116,12 @@ pub struct PourTrace {
 /// The mass (g) the load cell of the tool `tool` reads in `sim`'s current state.
 pub fn held_g(sim: &mut Simulation, tool: usize, reach: f64) -> f64 {
     let world = &mut sim.world;
-    let pose = {
-        let mut q = world.query::<(&Collider, &ColliderPose)>();
-        let mut poses: Vec<_> = q.iter(world).map(|(c, p)| (c.index, p.pose)).collect();
-        poses.sort_by_key(|p| p.0);
-        poses[tool].1
-    };
+    let mut q = world.query::<(&Collider, &ColliderPose)>();
+    let pose = q
+        .iter(world)
+        .find(|(c, _)| c.index == tool)
+        .map(|(_, p)| p.pose)
+        .expect("the problem's tool is in its world");
     let mut q = world.query::<(&Body, &Position)>();
     let mut kg = 0.0;
     for (b, x) in q.iter(world) {
