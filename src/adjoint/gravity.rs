@@ -17,11 +17,24 @@ pub fn gravity_adjoint(
 ) {
     let m_min = params.empty_node_mass;
     // Sequential: a fixed summation order keeps the gradient bitwise reproducible.
+    // Only the active spans hold non-empty nodes, visited in index order as the dense loop
+    // would: the same sum, bit for bit.
     let mut sum = DVec3::ZERO;
-    for (v, &m) in adj.velocity.iter().zip(&grid.mass) {
-        if m > m_min {
-            sum += *v;
+    let mut add = |range: std::ops::Range<usize>| {
+        for (v, &m) in adj.velocity[range.clone()].iter().zip(&grid.mass[range]) {
+            if m > m_min {
+                sum += *v;
+            }
         }
+    };
+    match &grid.active {
+        Some(rows) => {
+            let nz = grid.n[2];
+            for (row, span) in rows.span.iter().enumerate() {
+                add(row * nz + span[0] as usize..row * nz + span[1] as usize);
+            }
+        }
+        None => add(0..grid.mass.len()),
     }
     g.0 += sum * params.dt_sub;
 }

@@ -230,6 +230,7 @@ pub fn domain_walls_adjoint(
         m_min,
         n,
         cells,
+        grid.active.as_ref(),
         |coord, idx, g| {
             let mut normals = [DVec3::ZERO; 3];
             let mut vin = [DVec3::ZERO; 3];

@@ -195,6 +195,7 @@ pub(crate) struct SubstepRecord {
     grid_mass: Vec<f64>,
     grid_momentum: Vec<DVec3>,
     grid_velocity: Vec<DVec3>,
+    grid_active: Option<ActiveRows>,
     collider_input: Vec<DVec3>,
     wall_input: Vec<DVec3>,
 }
@@ -228,10 +229,11 @@ impl SubstepRecord {
     /// A record with buffers of the world's sizes.
     fn like(world: &mut World, bodies: &[Entity]) -> SubstepRecord {
         let grid = world.resource::<Grid>();
-        let (grid_mass, grid_momentum, grid_velocity) = (
+        let (grid_mass, grid_momentum, grid_velocity, grid_active) = (
             grid.mass.clone(),
             grid.momentum.clone(),
             grid.velocity.clone(),
+            grid.active.clone(),
         );
         let bodies = bodies
             .iter()
@@ -262,6 +264,7 @@ impl SubstepRecord {
             grid_mass,
             grid_momentum,
             grid_velocity,
+            grid_active,
         }
     }
 
@@ -313,6 +316,8 @@ impl SubstepRecord {
             std::mem::swap(&mut grid.mass, &mut self.grid_mass);
             std::mem::swap(&mut grid.momentum, &mut self.grid_momentum);
             std::mem::swap(&mut grid.velocity, &mut self.grid_velocity);
+            // What is known of the arrays' zeros travels with them.
+            std::mem::swap(&mut grid.active, &mut self.grid_active);
         }
         std::mem::swap(
             &mut world.resource_mut::<ColliderInputVelocity>().0,

@@ -2,6 +2,7 @@
 //! per-stage times, of the forward pass or of forward + backward.
 
 use anyhow::Result;
+use powderlab::components::Grid;
 use powderlab::sim::{SimOptions, Simulation};
 use powderlab::util::peak_rss_bytes;
 use serde_json::json;
@@ -26,6 +27,10 @@ pub struct Args {
     /// Memory budget of the backward tape in MB.
     #[arg(long, default_value_t = 4096)]
     budget_mb: usize,
+    /// Sweep every grid node in every stage instead of the active spans (the reference the
+    /// active-block grid is measured against; the results are the same bits).
+    #[arg(long)]
+    dense_grid: bool,
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
@@ -34,9 +39,16 @@ pub struct Args {
 /// Runs the command.
 pub fn run(a: Args) -> Result<()> {
     if a.backward {
-        backward(a.scene, a.steps, a.threads, a.budget_mb, a.json)
+        backward(
+            a.scene,
+            a.steps,
+            a.threads,
+            a.budget_mb,
+            a.dense_grid,
+            a.json,
+        )
     } else {
-        forward(a.scene, a.steps, a.threads, a.stages, a.json)
+        forward(a.scene, a.steps, a.threads, a.stages, a.dense_grid, a.json)
     }
 }
 
@@ -45,6 +57,7 @@ fn backward(
     steps: Option<usize>,
     threads: Option<usize>,
     budget_mb: usize,
+    dense_grid: bool,
     json_out: bool,
 ) -> Result<()> {
     let sc = powderlab::scene::Scene::load(&scene)?;
@@ -55,6 +68,7 @@ fn backward(
             ..Default::default()
         },
     )?;
+    sim.world.resource_mut::<Grid>().sparse = !dense_grid;
     let steps = steps.unwrap_or(sim.horizon);
     let n = sim.particle_count();
     let loss = powderlab::adjoint::loss::scene_loss(&sc);
@@ -133,6 +147,7 @@ fn forward(
     steps: Option<usize>,
     threads: Option<usize>,
     stages: bool,
+    dense_grid: bool,
     json_out: bool,
 ) -> Result<()> {
     let mut sim = Simulation::from_file(
@@ -146,6 +161,7 @@ fn forward(
     if !json_out {
         super::describe_stability(&sim);
     }
+    sim.world.resource_mut::<Grid>().sparse = !dense_grid;
     let steps = steps.unwrap_or(sim.horizon);
     let n = sim.particle_count();
     let start = Instant::now();
@@ -160,11 +176,12 @@ fn forward(
     let rate = n as f64 * substeps as f64 / wall;
     let stage_s = sim.stage_seconds();
     let peak = peak_rss_bytes();
+    let states = sim.body_states();
     let mean_pos = {
-        let st = sim.body_states();
-        let all: Vec<_> = st.iter().flat_map(|b| b.x.iter().copied()).collect();
+        let all: Vec<_> = states.iter().flat_map(|b| b.x.iter().copied()).collect();
         all.iter().copied().sum::<glam::DVec3>() / all.len().max(1) as f64
     };
+    let fingerprint = state_fingerprint(&states);
     if json_out {
         let stages_obj: serde_json::Map<String, serde_json::Value> = stage_s
             .iter()
@@ -182,6 +199,7 @@ fn forward(
                 "particle_substeps_per_s": rate,
                 "peak_rss_bytes": peak,
                 "final_mean_position_m": [mean_pos.x, mean_pos.y, mean_pos.z],
+                "state_fingerprint": format!("{fingerprint:016x}"),
                 "stages": stages_obj,
             })
         );
@@ -199,6 +217,7 @@ fn forward(
             "final mean x     ({:.6}, {:.6}, {:.6}) m",
             mean_pos.x, mean_pos.y, mean_pos.z
         );
+        println!("state bits       {fingerprint:016x}");
         if !stage_s.is_empty() {
             let total: f64 = stage_s.iter().map(|s| s.1).sum();
             for (k, v) in &stage_s {
@@ -207,4 +226,30 @@ fn forward(
         }
     }
     Ok(())
+}
+
+/// FNV-1a over the bits of every particle's x, v, C and F: equal exactly when two runs end in
+/// the same state to the bit (a check that a speed lever left the results alone).
+fn state_fingerprint(states: &[powderlab::components::BodyState]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    let mut eat = |x: f64| {
+        for b in x.to_bits().to_le_bytes() {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for b in states {
+        for (x, v) in b.x.iter().zip(&b.v) {
+            x.to_array()
+                .into_iter()
+                .chain(v.to_array())
+                .for_each(&mut eat);
+        }
+        for (c, f) in b.c.iter().zip(&b.f) {
+            c.to_cols_array()
+                .into_iter()
+                .chain(f.to_cols_array())
+                .for_each(&mut eat);
+        }
+    }
+    h
 }

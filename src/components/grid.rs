@@ -29,6 +29,133 @@ pub struct Grid {
     pub momentum: Vec<DVec3>,
     /// Node velocity (m/s), `momentum/mass` for nodes heavier than the empty-node threshold.
     pub velocity: Vec<DVec3>,
+    /// Whether P2G tracks the part of the grid that particles reach ([`ActiveRows`]), so that
+    /// the stages that sweep nodes sweep only that part (the active-block grid). `false` keeps
+    /// every sweep dense (the reference the active grid is tested and measured against).
+    pub sparse: bool,
+    /// The nodes that may be non-zero: `Some(rows)` guarantees that every node outside
+    /// `rows`' spans has zero mass, momentum and velocity; `None` promises nothing, and the
+    /// sweeps cover every node. Travels with the node arrays (the backward pass's records swap
+    /// the three arrays and this together).
+    pub active: Option<ActiveRows>,
+}
+
+/// The active part of the grid, by node rows (a row is the `n[2]` nodes of one `(i, j)`, one
+/// contiguous range of the x-major layout): per row, the span of `k` that some particle's
+/// stencil reaches this substep. A stencil spans 3 nodes per axis from its base, so a row
+/// `(i, j)` is reached by the particles whose base row is `(i − a, j − b)`, `a, b ∈ {0, 1, 2}`,
+/// and its span is the hull of those particles' `[base k, base k + 3)`. Sweeping a span instead
+/// of a row costs `O(rows)` per sweep on top of the active nodes: sub-linear in the grid's
+/// empty nodes, where the dense sweep is linear.
+#[derive(Clone, Debug, Default)]
+pub struct ActiveRows {
+    /// Per base row `i·ny + j`: the lowest and highest base `k` of the particles based there,
+    /// `[u32::MAX, 0]` where none is. Scratch of [`ActiveRows::mark`].
+    base: Vec<[u32; 2]>,
+    /// Per node row `i·ny + j`: the active span `[k0, k1)`, empty (`k0 == k1`) where no
+    /// stencil reaches.
+    pub span: Vec<[u32; 2]>,
+}
+
+/// The empty span of [`ActiveRows::base`].
+const NO_BASE: [u32; 2] = [u32::MAX, 0];
+
+impl ActiveRows {
+    /// No active node, on a grid of `n` nodes.
+    pub fn empty(n: [usize; 3]) -> Self {
+        ActiveRows {
+            base: Vec::new(),
+            span: vec![[0, 0]; n[0] * n[1]],
+        }
+    }
+
+    /// Starts a new marking for a grid of `n` nodes: no base row holds a particle.
+    pub fn clear(&mut self, n: [usize; 3]) {
+        self.base.clear();
+        self.base.resize(n[0] * n[1], NO_BASE);
+    }
+
+    /// The base rows, for a parallel marker that cuts them itself.
+    pub fn base_mut(&mut self) -> &mut [[u32; 2]] {
+        &mut self.base
+    }
+
+    /// Records a particle whose stencil base is `(·, ·, k)` in the base row entry `row`.
+    #[inline(always)]
+    pub fn mark(row: &mut [u32; 2], k: usize) {
+        let k = k as u32;
+        row[0] = row[0].min(k);
+        row[1] = row[1].max(k);
+    }
+
+    /// Derives the node rows' spans from the marked base rows (see the type's docs).
+    pub fn finish(&mut self, n: [usize; 3]) {
+        use rayon::prelude::*;
+        let (nx, ny) = (n[0], n[1]);
+        self.span.resize(nx * ny, [0, 0]);
+        let base = &self.base;
+        self.span
+            .par_chunks_mut(ny)
+            .enumerate()
+            .for_each(|(i, plane)| {
+                for (j, span) in plane.iter_mut().enumerate() {
+                    let mut hull = NO_BASE;
+                    for bi in i.saturating_sub(2)..=i {
+                        for bj in j.saturating_sub(2)..=j {
+                            let b = base[bi * ny + bj];
+                            hull = [hull[0].min(b[0]), hull[1].max(b[1])];
+                        }
+                    }
+                    *span = if hull[0] <= hull[1] {
+                        [hull[0], (hull[1] + 3).min(n[2] as u32)]
+                    } else {
+                        [0, 0]
+                    };
+                }
+            });
+    }
+
+    /// Active nodes (for reports and tests).
+    pub fn nodes(&self) -> usize {
+        self.span.iter().map(|s| (s[1] - s[0]) as usize).sum()
+    }
+}
+
+/// Calls `f(index, node)` for every node of `nodes`, an x-major array of a grid of `n` nodes,
+/// that lies in a span of `active`, or for every node when `active` is `None`; one x-plane per
+/// parallel task, each plane's nodes in index order. The result of a per-node `f` does not
+/// depend on the thread count.
+#[inline(always)]
+pub fn for_active_nodes<T: Send>(
+    nodes: &mut [T],
+    n: [usize; 3],
+    active: Option<&ActiveRows>,
+    f: impl Fn(usize, &mut T) + Sync,
+) {
+    use rayon::prelude::*;
+    let plane_len = n[1] * n[2];
+    nodes
+        .par_chunks_mut(plane_len)
+        .enumerate()
+        .for_each(|(i, plane)| {
+            let p0 = i * plane_len;
+            match active {
+                Some(rows) => {
+                    for (j, span) in rows.span[i * n[1]..(i + 1) * n[1]].iter().enumerate() {
+                        let (k0, k1) = (span[0] as usize, span[1] as usize);
+                        let r0 = j * n[2];
+                        for (k, node) in plane[r0 + k0..r0 + k1].iter_mut().enumerate() {
+                            f(p0 + r0 + k0 + k, node);
+                        }
+                    }
+                }
+                None => {
+                    for (k, node) in plane.iter_mut().enumerate() {
+                        f(p0 + k, node);
+                    }
+                }
+            }
+        });
 }
 
 /// Grid velocity entering the collider response at the nodes it acts on (the non-empty ones),
@@ -53,6 +180,9 @@ impl Grid {
             mass: vec![0.0; len],
             momentum: vec![DVec3::ZERO; len],
             velocity: vec![DVec3::ZERO; len],
+            sparse: true,
+            // The first grid reset zeroes every node and starts the tracking.
+            active: None,
         }
     }
 

@@ -1,21 +1,18 @@
-//! Stage 7, gravity: `v_i += Δt_sub·g` on every non-empty node.
+//! Stage 7, gravity: `v_i += Δt_sub·g` on every non-empty node (in the active part of the grid).
 //!
 //! Reads `SimParams`; writes `Grid::velocity`.
 
 use crate::components::*;
 use bevy_ecs::prelude::*;
-use rayon::prelude::*;
 
 pub fn gravity(params: Res<SimParams>, mut grid: ResMut<Grid>) {
     let dv = params.gravity * params.dt_sub;
     let m_min = params.empty_node_mass;
     let g = &mut *grid;
-    g.velocity
-        .par_iter_mut()
-        .zip(g.mass.par_iter())
-        .for_each(|(v, &m)| {
-            if m > m_min {
-                *v += dv;
-            }
-        });
+    let mass = &g.mass;
+    for_active_nodes(&mut g.velocity, g.n, g.active.as_ref(), |idx, v| {
+        if mass[idx] > m_min {
+            *v += dv;
+        }
+    });
 }

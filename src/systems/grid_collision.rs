@@ -28,12 +28,9 @@ pub fn collider_contact(
     let m_min = params.empty_node_mass;
     let g = &mut *grid;
     let (origin, dx, n) = (g.origin, g.dx, g.n);
-    let node = |idx: usize, v: &mut DVec3, m: f64, saved: Option<&mut DVec3>| {
+    let node = |idx: usize, v: &mut DVec3, m: f64| {
         if m <= m_min {
             return;
-        }
-        if let Some(s) = saved {
-            *s = *v;
         }
         let k = idx % n[2];
         let j = (idx / n[2]) % n[1];
@@ -47,14 +44,17 @@ pub fn collider_contact(
             }
         }
     };
-    let nodes = g.velocity.par_iter_mut().zip(g.mass.par_iter()).enumerate();
-    match save.as_deref_mut() {
+    let (mass, active) = (&g.mass, g.active.as_ref());
+    if let Some(s) = save.as_deref_mut() {
         // The backward driver's recomputation: the input of every node acted on is saved.
-        Some(s) => nodes
-            .zip(s.0.par_iter_mut())
-            .for_each(|((idx, (v, &m)), s)| node(idx, v, m, Some(s))),
-        None => nodes.for_each(|(idx, (v, &m))| node(idx, v, m, None)),
+        let v = &g.velocity;
+        for_active_nodes(&mut s.0, n, active, |idx, s| {
+            if mass[idx] > m_min {
+                *s = v[idx];
+            }
+        });
     }
+    for_active_nodes(&mut g.velocity, n, active, |idx, v| node(idx, v, mass[idx]));
 }
 
 /// The inward wall normal along axis `a` of the node at `coord`, if it lies in a wall layer.
@@ -77,6 +77,9 @@ pub fn wall_normal(coord: [usize; 3], n: [usize; 3], cells: usize, a: usize) -> 
 /// are in no layer). Empty nodes are skipped: P2G left their velocity at +0, which no wall
 /// response changes (see `contact_response`), and the P2G adjoint drops their adjoint, so the
 /// walls and their adjoint have nothing to do there.
+///
+/// With `active` (the grid's [`ActiveRows`]), only the active spans are visited: every other
+/// node is empty.
 #[inline(always)]
 pub fn for_wall_nodes<T: Send>(
     nodes: &mut [T],
@@ -84,6 +87,7 @@ pub fn for_wall_nodes<T: Send>(
     m_min: f64,
     n: [usize; 3],
     cells: usize,
+    active: Option<&ActiveRows>,
     f: impl Fn([usize; 3], usize, &mut T) + Sync,
 ) {
     let in_layer = |c: usize, a: usize| c < cells || c + cells >= n[a];
@@ -93,9 +97,14 @@ pub fn for_wall_nodes<T: Send>(
         .enumerate()
         .for_each(|(i, plane)| {
             for (j, row) in plane.chunks_mut(n[2]).enumerate() {
+                let (k0, k1) = active.map_or((0, n[2]), |a| {
+                    let s = a.span[i * n[1] + j];
+                    (s[0] as usize, s[1] as usize)
+                });
                 let edge = in_layer(i, 0) || in_layer(j, 1);
                 let row0 = i * plane_len + j * n[2];
-                for (k, node) in row.iter_mut().enumerate() {
+                for (k, node) in row[k0..k1].iter_mut().enumerate() {
+                    let k = k0 + k;
                     if (edge || in_layer(k, 2)) && mass[row0 + k] > m_min {
                         f([i, j, k], row0 + k, node);
                     }
@@ -113,15 +122,26 @@ pub fn domain_walls(
     let (n, cells) = (grid.n, walls.cells);
     let g = &mut *grid;
     let m_min = params.empty_node_mass;
+    let active = g.active.as_ref();
     if let Some(s) = save.as_deref_mut() {
         // The backward driver's recomputation: the input of every node acted on is saved (a
         // walk over the wall layers, far cheaper than copying the whole grid).
         let v = &g.velocity;
-        for_wall_nodes(&mut s.0, &g.mass, m_min, n, cells, |_, idx, s| *s = v[idx]);
+        for_wall_nodes(&mut s.0, &g.mass, m_min, n, cells, active, |_, idx, s| {
+            *s = v[idx]
+        });
     }
-    for_wall_nodes(&mut g.velocity, &g.mass, m_min, n, cells, |coord, _, v| {
-        for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
-            *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
-        }
-    });
+    for_wall_nodes(
+        &mut g.velocity,
+        &g.mass,
+        m_min,
+        n,
+        cells,
+        active,
+        |coord, _, v| {
+            for normal in (0..3).filter_map(|a| wall_normal(coord, n, cells, a)) {
+                *v = contact_response(*v, DVec3::ZERO, normal, walls.mode, walls.friction);
+            }
+        },
+    );
 }

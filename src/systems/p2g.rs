@@ -15,6 +15,9 @@
 //! The summation order of every node is fixed by the scene, not by the thread count: results
 //! are bitwise identical for any number of threads.
 //!
+//! **Active-block grid.** While it bins, P2G marks the rows of nodes that the stencils reach
+//! ([`ActiveRows`]); the velocity pass and the later grid stages sweep those spans only.
+//!
 //! Reads `Body`, `Position`, `Velocity`, `P2gAffine`; writes `Grid` and `ScatterOrder`.
 
 use crate::components::*;
@@ -77,6 +80,33 @@ pub fn bin_by_slab(grid: &Grid, x: &[DVec3], out: &mut ScatterOrder) {
     }
 }
 
+/// Marks the base rows of a binned body's particles in `rows` (see [`ActiveRows`]): slab `s`
+/// owns base x-planes `[SLAB·s, SLAB·s + SLAB)`, so the slabs mark disjoint rows in parallel,
+/// and a minimum and a maximum do not depend on the order.
+pub fn mark_active(
+    rows: &mut ActiveRows,
+    order: &ScatterOrder,
+    x: &[DVec3],
+    origin: DVec3,
+    dx: f64,
+    n: [usize; 3],
+) {
+    let ny = n[1];
+    rows.base_mut()
+        .par_chunks_mut(SLAB * ny)
+        .enumerate()
+        .for_each(|(slab, base)| {
+            let Some(&e) = order.slab_start.get(slab + 1) else {
+                return;
+            };
+            let s = order.slab_start[slab] as usize;
+            for &p in &order.order[s..e as usize] {
+                let [bi, bj, bk] = stencil((x[p as usize] - origin) / dx).base;
+                ActiveRows::mark(&mut base[(bi - SLAB * slab) * ny + bj], bk);
+            }
+        });
+}
+
 /// Scatters one particle into node arrays that start at x-plane `plane0`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -125,8 +155,17 @@ pub fn p2g(
     let g = &mut *grid;
     let (origin, dx, n) = (g.origin, g.dx, g.n);
     let pl = g.plane_len();
+    // The active-block grid: the spans that this substep's stencils reach, marked body by body
+    // from the slab binning (see `ActiveRows`). A grid without tracking stays dense.
+    let mut active = g.active.take().filter(|_| g.sparse);
+    if let Some(rows) = active.as_mut() {
+        rows.clear(n);
+    }
     for (body, x, v, aff, mut order) in bodies {
         bin_by_slab(g, &x.0, &mut order);
+        if let Some(rows) = active.as_mut() {
+            mark_active(rows, &order, &x.0, origin, dx, n);
+        }
         let m = body.particle_mass;
         let order = &*order;
         // `mc` and `pc` are the slab's planes, from its first one, `SLAB·slab`.
@@ -161,15 +200,22 @@ pub fn p2g(
             scatter_slab,
         );
     }
+    if let Some(rows) = active.as_mut() {
+        rows.finish(n);
+    }
+    g.active = active;
     let m_min = params.empty_node_mass;
     let watch = crate::systems::FiniteWatch::default();
-    g.velocity
-        .par_iter_mut()
-        .zip(g.mass.par_iter().zip(g.momentum.par_iter()))
-        .for_each(|(v, (&m, &p))| {
-            *v = if m > m_min { p / m } else { DVec3::ZERO };
-            watch.check(v.is_finite());
-        });
+    let (mass, momentum) = (&g.mass, &g.momentum);
+    for_active_nodes(&mut g.velocity, n, g.active.as_ref(), |idx, v| {
+        let m = mass[idx];
+        *v = if m > m_min {
+            momentum[idx] / m
+        } else {
+            DVec3::ZERO
+        };
+        watch.check(v.is_finite());
+    });
     if let Some(i) = watch.first_nonfinite_vec(&g.velocity) {
         health.report(Fault {
             stage: "p2g",
