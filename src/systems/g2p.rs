@@ -14,31 +14,19 @@ use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-/// Gathers `(v_p, C_p)` for a particle at `x`.
+/// Gathers `(v_p, C_p)` for a particle at `x`, contracted one axis at a time
+/// ([`crate::math::kernel::Stencil::node_sums`]): `v_p = Σ w·v_i` and
+/// `C_p = (4/dx²)·Σ w·v_i·d_ipᵀ` factor along the axes, so a node costs a few multiply-adds
+/// instead of its own weight and outer product.
 #[inline(always)]
 pub fn gather(grid: &Grid, x: DVec3) -> (DVec3, DMat3) {
     let dx = grid.dx;
     let st = stencil((x - grid.origin) / dx);
     let [bi, bj, bk] = st.base;
-    let mut v = DVec3::ZERO;
-    let mut c = DMat3::ZERO;
-    for a in 0..3 {
-        let wa = st.w[0][a];
-        let da = (a as f64 - st.fx.x) * dx;
-        for b in 0..3 {
-            let wab = wa * st.w[1][b];
-            let db = (b as f64 - st.fx.y) * dx;
-            let base = grid.index(bi + a, bj + b, bk);
-            for k in 0..3 {
-                let w = wab * st.w[2][k];
-                let vi = grid.velocity[base + k];
-                let dpos = DVec3::new(da, db, (k as f64 - st.fx.z) * dx);
-                v += w * vi;
-                c += DMat3::from_cols(vi * (w * dpos.x), vi * (w * dpos.y), vi * (w * dpos.z));
-            }
-        }
-    }
-    (v, c * (4.0 / (dx * dx)))
+    let sums = st.node_sums(1.0 / dx, |a, b, c| {
+        (grid.velocity[grid.index(bi + a, bj + b, bk) + c], 0.0)
+    });
+    (sums.w_g, sums.w_g_d(st.fx, dx) * (4.0 / (dx * dx)))
 }
 
 pub fn g2p(
