@@ -205,7 +205,6 @@ struct BodyRecord {
     /// The velocity advect used (after particle collision).
     v_end: Vec<DVec3>,
     collision_input: Vec<DVec3>,
-    trial: Vec<DMat3>,
     svd: SvdFactors,
     /// What the material update saved for its adjoint.
     saved: Vec<crate::materials::Saved>,
@@ -218,7 +217,6 @@ type RecordQuery<'a> = (
     &'a mut Velocity,
     &'a mut SubstepStart,
     &'a mut ParticleCollisionInput,
-    &'a mut TrialDeformation,
     &'a mut SvdFactors,
     &'a mut UpdateSaved,
     &'a mut P2gAffine,
@@ -243,7 +241,6 @@ impl SubstepRecord {
                     start: SubstepStart::zeroed(n),
                     v_end: Vec::new(),
                     collision_input: Vec::new(),
-                    trial: vec![DMat3::ZERO; n],
                     svd: SvdFactors {
                         u: vec![DMat3::ZERO; n],
                         s: vec![DVec3::ZERO; n],
@@ -279,17 +276,8 @@ impl SubstepRecord {
         save: bool,
     ) {
         for (&e, b) in bodies.iter().zip(&mut self.bodies) {
-            let (
-                mut x,
-                mut v,
-                mut start,
-                mut pc,
-                mut trial,
-                mut svd,
-                mut saved,
-                mut affine,
-                mut order,
-            ) = q.get_mut(world, e).expect("a body entity");
+            let (mut x, mut v, mut start, mut pc, mut svd, mut saved, mut affine, mut order) =
+                q.get_mut(world, e).expect("a body entity");
             if save {
                 b.v_end.clone_from(&v.0);
             } else {
@@ -299,7 +287,6 @@ impl SubstepRecord {
             }
             std::mem::swap(&mut *start, &mut b.start);
             std::mem::swap(&mut pc.0, &mut b.collision_input);
-            std::mem::swap(&mut trial.0, &mut b.trial);
             std::mem::swap(&mut svd.u, &mut b.svd.u);
             std::mem::swap(&mut svd.s, &mut b.svd.s);
             if save {
@@ -340,10 +327,10 @@ impl SubstepRecord {
 
     /// Bytes held by one record of a world.
     pub(crate) fn bytes(particles: usize, nodes: usize) -> usize {
-        // start (x, v, C, F), final v, collision input, trial F, U, σ, V, the material's saved
-        // update, affine, order; grid m, p, v and the two contact inputs.
-        particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 72 + 24 + 72 + 72 + 72 + 4)
-            + nodes * (8 + 4 * 24)
+        // start (x, v, C, F), final v, collision input, U, σ, V, the material's saved update,
+        // affine, order; grid m, p, v and the two contact inputs. The trial F is not kept: no
+        // adjoint stage reads it (the SVD's adjoint works from U, σ, V).
+        particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 24 + 72 + 72 + 72 + 4) + nodes * (8 + 4 * 24)
     }
 }
 
