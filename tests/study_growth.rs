@@ -28,7 +28,7 @@ fn quick_growth_study_measures_every_configuration_and_writes_its_files() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let v: Value = serde_json::from_slice(&o.stdout).unwrap();
     let results = v["results"].as_array().unwrap();
-    assert_eq!(results.len(), 4, "{v}");
+    assert_eq!(results.len(), 6, "{v}");
     for r in results {
         let cells = r["config"]["cells"].as_u64().unwrap();
         // The quick plan's block is 4 cells wide: (2·4)³ particles on the regular lattice.
@@ -51,12 +51,18 @@ fn quick_growth_study_measures_every_configuration_and_writes_its_files() {
             >= 1.0
     );
     let csv = std::fs::read_to_string(dir.join("growth.csv")).unwrap();
-    assert_eq!(csv.lines().count(), 5, "{csv}");
+    assert_eq!(csv.lines().count(), 7, "{csv}");
     let svg = std::fs::read_to_string(dir.join("growth.svg")).unwrap();
     assert!(svg.starts_with("<svg") && svg.contains("ns per particle-substep"));
     let json: Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("growth.json")).unwrap()).unwrap();
-    assert_eq!(json.as_array().unwrap().len(), 4);
+    assert_eq!(json.as_array().unwrap().len(), 6);
+    // The dense twin of each grid configuration ends in the active grid's state, to the bit.
+    let gain = v["active_grid_gain"].as_array().unwrap();
+    assert_eq!(gain.len(), 2, "{v}");
+    for g in gain {
+        assert_eq!(g["same_bits"], true, "{g}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

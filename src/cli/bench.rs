@@ -181,7 +181,7 @@ fn forward(
         let all: Vec<_> = states.iter().flat_map(|b| b.x.iter().copied()).collect();
         all.iter().copied().sum::<glam::DVec3>() / all.len().max(1) as f64
     };
-    let fingerprint = state_fingerprint(&states);
+    let fingerprint = powderlab::components::state_fingerprint(&states);
     if json_out {
         let stages_obj: serde_json::Map<String, serde_json::Value> = stage_s
             .iter()
@@ -226,30 +226,4 @@ fn forward(
         }
     }
     Ok(())
-}
-
-/// FNV-1a over the bits of every particle's x, v, C and F: equal exactly when two runs end in
-/// the same state to the bit (a check that a speed lever left the results alone).
-fn state_fingerprint(states: &[powderlab::components::BodyState]) -> u64 {
-    let mut h = 0xcbf2_9ce4_8422_2325u64;
-    let mut eat = |x: f64| {
-        for b in x.to_bits().to_le_bytes() {
-            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-        }
-    };
-    for b in states {
-        for (x, v) in b.x.iter().zip(&b.v) {
-            x.to_array()
-                .into_iter()
-                .chain(v.to_array())
-                .for_each(&mut eat);
-        }
-        for (c, f) in b.c.iter().zip(&b.f) {
-            c.to_cols_array()
-                .into_iter()
-                .chain(f.to_cols_array())
-                .for_each(&mut eat);
-        }
-    }
-    h
 }

@@ -271,12 +271,23 @@ fn growth_cmd(a: Args) -> Result<()> {
     }
     pb.finish_and_clear();
     let spread = growth::particle_series_spread(&results);
+    let gain = growth::active_grid_gain(&results);
+    let (grown, grown_dense) = (
+        growth::grid_series_growth(&results, growth::Series::Grid),
+        growth::grid_series_growth(&results, growth::Series::GridDense),
+    );
     if a.json {
         println!(
             "{}",
             json!({
                 "results": results,
                 "particle_series_max_over_min_throughput": spread,
+                "grid_series_largest_over_smallest": grown,
+                "grid_dense_series_largest_over_smallest": grown_dense,
+                "active_grid_gain": gain
+                    .iter()
+                    .map(|(c, r, same)| json!({"cells": c, "dense_over_active": r, "same_bits": same}))
+                    .collect::<Vec<_>>(),
                 "wall_s": start.elapsed().as_secs_f64(),
                 "csv": outputs.csv,
                 "svg": outputs.svg,
@@ -288,6 +299,17 @@ fn growth_cmd(a: Args) -> Result<()> {
             println!(
                 "particle series: fastest/slowest throughput {s:.3} (flat within 20 % is ≤ 1.2: {})",
                 if s <= 1.2 { "PASS" } else { "FAIL" }
+            );
+        }
+        if let (Some(g), Some(d)) = (grown, grown_dense) {
+            println!(
+                "grid series: largest over smallest grid's time per substep {g:.2} (dense sweeps {d:.2})"
+            );
+        }
+        for (cells, r, same) in &gain {
+            println!(
+                "{cells}³ grid: dense sweeps take {r:.2}× the active grid's time; final states {}",
+                if *same { "equal to the bit" } else { "DIFFER" }
             );
         }
         eprintln!(

@@ -8,8 +8,10 @@
 //!   about 10k to 1M particles. Particles per cell and the block's share of the domain stay
 //!   fixed, so a constant time per particle-substep is the ideal.
 //! - **grid**: a fixed block of 19 cells (38³ = 54,872 particles, less 56 that the tool starts
-//!   in on the coarsest grid) on ever larger grids, 32³ to 160³ nodes. The grid is dense, so the grid stages grow with the nodes while the particle
-//!   stages do not.
+//!   in on the coarsest grid) on ever larger grids, 32³ to 160³ nodes. The grid stages sweep
+//!   only the active spans (`components::grid::ActiveRows`), so they grow with the rows, not
+//!   the nodes; the **grid_dense** series repeats the grid series with dense sweeps, the
+//!   measure of what the active-block grid saves.
 //!
 //! Each configuration runs in a child process of its own (its peak RSS is its own); the substeps
 //! per step grow with the resolution so that every variant passes the strict stability check.
@@ -31,6 +33,9 @@ use std::time::Instant;
 pub enum Series {
     Particles,
     Grid,
+    /// The grid series with every grid stage sweeping every node (`Grid::sparse` off): what
+    /// the active-block grid saves.
+    GridDense,
 }
 
 /// One configuration: `cells`³ grid nodes over the unit cube, a block `block_cells` cells wide.
@@ -57,6 +62,9 @@ pub struct GrowthResult {
     pub ns_per_particle_substep: f64,
     pub particle_substeps_per_s: f64,
     pub peak_rss_bytes: u64,
+    /// [`crate::components::state_fingerprint`] of the final state: a grid configuration and
+    /// its dense twin must agree.
+    pub state_bits: String,
 }
 
 /// `sand_box`'s resolution, at which it takes 20 substeps per step.
@@ -102,13 +110,19 @@ pub fn plan(quick: bool, threads: Option<usize>) -> Vec<GrowthConfig> {
             threads,
             timed_steps,
         })
-        .chain(grid.iter().map(|&n| GrowthConfig {
-            series: Series::Grid,
-            cells: n,
-            block_cells: if quick { 4 } else { GRID_SERIES_BLOCK },
-            threads,
-            timed_steps,
-        }))
+        .chain(
+            [Series::Grid, Series::GridDense]
+                .into_iter()
+                .flat_map(|series| {
+                    grid.iter().map(move |&n| GrowthConfig {
+                        series,
+                        cells: n,
+                        block_cells: if quick { 4 } else { GRID_SERIES_BLOCK },
+                        threads,
+                        timed_steps,
+                    })
+                }),
+        )
         .collect()
 }
 
@@ -162,6 +176,7 @@ pub fn simulation(
 /// Runs one configuration in this process: one untimed step, then `timed_steps` timed steps.
 pub fn run_config(base: &Scene, cfg: &GrowthConfig) -> anyhow::Result<GrowthResult> {
     let mut sim = simulation(base, cfg, false)?;
+    sim.world.resource_mut::<crate::components::Grid>().sparse = cfg.series != Series::GridDense;
     let particles = sim.particle_count();
     let n = cfg.cells;
     sim.step()?;
@@ -184,6 +199,10 @@ pub fn run_config(base: &Scene, cfg: &GrowthConfig) -> anyhow::Result<GrowthResu
         ns_per_particle_substep: per / particles as f64 * 1e9,
         particle_substeps_per_s: particles as f64 / per,
         peak_rss_bytes: peak_rss_bytes(),
+        state_bits: format!(
+            "{:016x}",
+            crate::components::state_fingerprint(&sim.body_states())
+        ),
     })
 }
 
@@ -198,6 +217,39 @@ pub fn particle_series_spread(results: &[GrowthResult]) -> Option<f64> {
     let hi = rates.iter().copied().fold(f64::NAN, f64::max);
     let lo = rates.iter().copied().fold(f64::NAN, f64::min);
     (rates.len() >= 2).then_some(hi / lo)
+}
+
+/// Per grid measured both ways: `(cells, dense over active seconds per substep, whether the
+/// two final states agree to the bit)`.
+pub fn active_grid_gain(results: &[GrowthResult]) -> Vec<(usize, f64, bool)> {
+    results
+        .iter()
+        .filter(|r| r.config.series == Series::Grid)
+        .filter_map(|a| {
+            results
+                .iter()
+                .find(|d| d.config.series == Series::GridDense && d.config.cells == a.config.cells)
+                .map(|d| {
+                    (
+                        a.config.cells,
+                        d.seconds_per_substep / a.seconds_per_substep,
+                        d.state_bits == a.state_bits,
+                    )
+                })
+        })
+        .collect()
+}
+
+/// Seconds per substep on the largest grid over the smallest, in `series` (the growth with
+/// the empty nodes at a fixed particle count).
+pub fn grid_series_growth(results: &[GrowthResult], series: Series) -> Option<f64> {
+    let pts: Vec<&GrowthResult> = results
+        .iter()
+        .filter(|r| r.config.series == series)
+        .collect();
+    let lo = pts.iter().min_by_key(|r| r.nodes)?;
+    let hi = pts.iter().max_by_key(|r| r.nodes)?;
+    (pts.len() >= 2).then(|| hi.seconds_per_substep / lo.seconds_per_substep)
 }
 
 /// Where the study writes.
@@ -227,6 +279,7 @@ pub fn csv(results: &[GrowthResult]) -> String {
             match r.config.series {
                 Series::Particles => "particles",
                 Series::Grid => "grid",
+                Series::GridDense => "grid_dense",
             },
             r.config.cells,
             r.particles,
@@ -283,24 +336,32 @@ fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
                 SeriesLabelPosition::UpperLeft,
             ),
         ]) {
-            let pts: Vec<Point> = results
-                .iter()
-                .filter(|r| r.config.series == series)
-                .map(|r| {
-                    let x = match series {
-                        Series::Particles => r.particles as f64,
-                        Series::Grid => r.nodes as f64,
-                    };
-                    (x, r.seconds_per_substep * 1e3, r.ns_per_particle_substep)
-                })
-                .collect();
+            let points = |series: Series| -> Vec<Point> {
+                results
+                    .iter()
+                    .filter(|r| r.config.series == series)
+                    .map(|r| {
+                        let x = match series {
+                            Series::Particles => r.particles as f64,
+                            Series::Grid | Series::GridDense => r.nodes as f64,
+                        };
+                        (x, r.seconds_per_substep * 1e3, r.ns_per_particle_substep)
+                    })
+                    .collect()
+            };
+            let pts = points(series);
+            let dense = if series == Series::Grid {
+                points(Series::GridDense)
+            } else {
+                Vec::new()
+            };
             if pts.is_empty() {
                 continue;
             }
             let (x0, x1) = pts
                 .iter()
                 .fold((f64::MAX, 0.0f64), |a, p| (a.0.min(p.0), a.1.max(p.0)));
-            let ys = pts.iter().flat_map(|p| [p.1, p.2]);
+            let ys = pts.iter().chain(&dense).flat_map(|p| [p.1, p.2]);
             let (y0, y1) = ys.fold((f64::MAX, 0.0f64), |a, y| (a.0.min(y), a.1.max(y)));
             let mut chart = ChartBuilder::on(area)
                 .margin(12)
@@ -332,6 +393,21 @@ fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
                 chart.draw_series(
                     pts.iter()
                         .map(|p| Circle::new((p.0, y(p)), 3, colour.filled())),
+                )?;
+            }
+            if !dense.is_empty() {
+                let grey = RGBColor(120, 120, 120);
+                chart
+                    .draw_series(LineSeries::new(
+                        dense.iter().map(|p| (p.0, p.1)),
+                        grey.stroke_width(2),
+                    ))?
+                    .label("ms per substep, dense grid sweeps")
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], grey));
+                chart.draw_series(
+                    dense
+                        .iter()
+                        .map(|p| Circle::new((p.0, p.1), 3, grey.filled())),
                 )?;
             }
             chart
@@ -369,7 +445,9 @@ mod tests {
             let n = sim.particle_count();
             match cfg.series {
                 Series::Particles => assert_eq!(n, lattice, "{cfg:?}"),
-                Series::Grid => assert!(n <= lattice && n * 1000 >= lattice * 998, "{cfg:?}: {n}"),
+                Series::Grid | Series::GridDense => {
+                    assert!(n <= lattice && n * 1000 >= lattice * 998, "{cfg:?}: {n}")
+                }
             }
         }
     }
