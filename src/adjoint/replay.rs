@@ -14,6 +14,7 @@ use crate::sim::{run_in, Simulation};
 use crate::systems::{self, new_schedule, Stage, SubstepPlan};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
+use std::ops::Range;
 use std::time::Instant;
 
 type StartQuery<'a> = (
@@ -185,19 +186,143 @@ impl Replay {
 /// the substeps of one step while it recomputes them, then reverses them from these records, so
 /// each substep's forward runs twice in all (taped pass and recomputation), not three times.
 ///
-/// Recording swaps buffers with the world instead of copying them (the forward stages overwrite
-/// every swapped-out scratch buffer before reading it); only the SVD's `V`, which the next
-/// substep's SVD warm-starts from, is copied.
+/// Recording swaps particle buffers with the world instead of copying them (the forward stages
+/// overwrite every swapped-out scratch buffer before reading it); only the SVD's `V`, which the
+/// next substep's SVD warm-starts from, is copied. The grid is copied, packed to its active
+/// spans ([`PackedGrid`]): a tenth of the dense arrays' bytes on `sand_box`.
 pub(crate) struct SubstepRecord {
     clock: Clock,
     colliders: Vec<ColliderPose>,
     bodies: Vec<BodyRecord>,
-    grid_mass: Vec<f64>,
-    grid_momentum: Vec<DVec3>,
-    grid_velocity: Vec<DVec3>,
-    grid_active: Option<ActiveRows>,
+    grid: PackedGrid,
+}
+
+/// The grid of a substep's end as its adjoint reads it: the node values inside the active
+/// spans (`Grid::active`; every node of a dense grid), packed in span order. Outside the spans
+/// every node is zero and no contact input is read (the contact adjoints act on non-empty
+/// nodes only), so the spans hold the whole grid: on `sand_box` about a tenth of the nodes.
+#[derive(Default)]
+struct PackedGrid {
+    /// The grid's active spans (`None`: a dense grid, packed whole).
+    spans: Option<Vec<[u32; 2]>>,
+    mass: Vec<f64>,
+    momentum: Vec<DVec3>,
+    velocity: Vec<DVec3>,
     collider_input: Vec<DVec3>,
     wall_input: Vec<DVec3>,
+}
+
+/// Calls `f(range)` for each node range of the spans (x-major rows of `nz` nodes), in order,
+/// or once for every node.
+fn for_spans(spans: Option<&[[u32; 2]]>, nodes: usize, nz: usize, mut f: impl FnMut(Range<usize>)) {
+    match spans {
+        Some(spans) => {
+            for (row, s) in spans.iter().enumerate() {
+                if s[1] > s[0] {
+                    f(row * nz + s[0] as usize..row * nz + s[1] as usize);
+                }
+            }
+        }
+        None => f(0..nodes),
+    }
+}
+
+/// Makes room for `n` values in a packed buffer: twice that when it must grow, so that a
+/// spreading powder reallocates a record's buffers a few times in a run, not every substep.
+fn make_room<T>(v: &mut Vec<T>, n: usize) {
+    v.clear();
+    if v.capacity() < n {
+        v.reserve(2 * n);
+    }
+}
+
+impl PackedGrid {
+    /// Copies the world's grid and contact inputs at the active spans.
+    fn pack(&mut self, world: &World) {
+        let grid = world.resource::<Grid>();
+        let (ci, wi) = (
+            &world.resource::<ColliderInputVelocity>().0,
+            &world.resource::<WallInputVelocity>().0,
+        );
+        match (&grid.active, &mut self.spans) {
+            (Some(a), Some(s)) => s.clone_from(&a.span),
+            (Some(a), None) => self.spans = Some(a.span.clone()),
+            (None, _) => self.spans = None,
+        }
+        let nodes = grid.mass.len();
+        let mut count = 0;
+        for_spans(self.spans.as_deref(), nodes, grid.n[2], |r| {
+            count += r.len()
+        });
+        make_room(&mut self.mass, count);
+        make_room(&mut self.momentum, count);
+        make_room(&mut self.velocity, count);
+        make_room(&mut self.collider_input, count);
+        make_room(&mut self.wall_input, count);
+        for_spans(self.spans.as_deref(), nodes, grid.n[2], |r| {
+            self.mass.extend_from_slice(&grid.mass[r.clone()]);
+            self.momentum.extend_from_slice(&grid.momentum[r.clone()]);
+            self.velocity.extend_from_slice(&grid.velocity[r.clone()]);
+            // The contact inputs are world-sized where the scene has the stage, else empty.
+            if let Some(c) = ci.get(r.clone()) {
+                self.collider_input.extend_from_slice(c);
+            }
+            if let Some(w) = wi.get(r) {
+                self.wall_input.extend_from_slice(w);
+            }
+        });
+    }
+
+    /// Puts the packed grid back into the world: the world's active nodes are zeroed, the
+    /// packed ones written, and the world's spans become the packed ones.
+    fn unpack(&self, world: &mut World) {
+        let mut grid = world.resource_mut::<Grid>();
+        let g = &mut *grid;
+        let (n, nodes) = (g.n, g.mass.len());
+        let old = g.active.as_ref().map(|a| a.span.as_slice());
+        for_spans(old, nodes, n[2], |r| {
+            g.mass[r.clone()].fill(0.0);
+            g.momentum[r.clone()].fill(DVec3::ZERO);
+            g.velocity[r].fill(DVec3::ZERO);
+        });
+        let mut at = 0;
+        for_spans(self.spans.as_deref(), nodes, n[2], |r| {
+            let k = r.len();
+            g.mass[r.clone()].copy_from_slice(&self.mass[at..at + k]);
+            g.momentum[r.clone()].copy_from_slice(&self.momentum[at..at + k]);
+            g.velocity[r].copy_from_slice(&self.velocity[at..at + k]);
+            at += k;
+        });
+        match (&self.spans, &mut g.active) {
+            (Some(s), Some(a)) => a.span.clone_from(s),
+            (Some(s), active @ None) => {
+                let mut a = ActiveRows::empty(n);
+                a.span.clone_from(s);
+                *active = Some(a);
+            }
+            (None, active) => *active = None,
+        }
+        let spans = self.spans.as_deref();
+        let put = |input: &mut Vec<DVec3>, packed: &[DVec3]| {
+            if packed.is_empty() {
+                return;
+            }
+            let mut at = 0;
+            for_spans(spans, nodes, n[2], |r| {
+                let k = r.len();
+                input[r].copy_from_slice(&packed[at..at + k]);
+                at += k;
+            });
+        };
+        put(
+            &mut world.resource_mut::<ColliderInputVelocity>().0,
+            &self.collider_input,
+        );
+        put(
+            &mut world.resource_mut::<WallInputVelocity>().0,
+            &self.wall_input,
+        );
+    }
 }
 
 struct BodyRecord {
@@ -226,13 +351,6 @@ type RecordQuery<'a> = (
 impl SubstepRecord {
     /// A record with buffers of the world's sizes.
     fn like(world: &mut World, bodies: &[Entity]) -> SubstepRecord {
-        let grid = world.resource::<Grid>();
-        let (grid_mass, grid_momentum, grid_velocity, grid_active) = (
-            grid.mass.clone(),
-            grid.momentum.clone(),
-            grid.velocity.clone(),
-            grid.active.clone(),
-        );
         let bodies = bodies
             .iter()
             .map(|&e| {
@@ -256,12 +374,7 @@ impl SubstepRecord {
             clock: Clock::default(),
             colliders: Vec::new(),
             bodies,
-            collider_input: grid_velocity.clone(),
-            wall_input: grid_velocity.clone(),
-            grid_mass,
-            grid_momentum,
-            grid_velocity,
-            grid_active,
+            grid: PackedGrid::default(),
         }
     }
 
@@ -298,22 +411,11 @@ impl SubstepRecord {
             std::mem::swap(&mut affine.0, &mut b.affine);
             std::mem::swap(&mut *order, &mut b.order);
         }
-        {
-            let mut grid = world.resource_mut::<Grid>();
-            std::mem::swap(&mut grid.mass, &mut self.grid_mass);
-            std::mem::swap(&mut grid.momentum, &mut self.grid_momentum);
-            std::mem::swap(&mut grid.velocity, &mut self.grid_velocity);
-            // What is known of the arrays' zeros travels with them.
-            std::mem::swap(&mut grid.active, &mut self.grid_active);
+        if save {
+            self.grid.pack(&*world);
+        } else {
+            self.grid.unpack(world);
         }
-        std::mem::swap(
-            &mut world.resource_mut::<ColliderInputVelocity>().0,
-            &mut self.collider_input,
-        );
-        std::mem::swap(
-            &mut world.resource_mut::<WallInputVelocity>().0,
-            &mut self.wall_input,
-        );
         if save {
             self.colliders = collider_states(world);
         } else {
@@ -329,7 +431,8 @@ impl SubstepRecord {
     pub(crate) fn bytes(particles: usize, nodes: usize) -> usize {
         // start (x, v, C, F), final v, collision input, U, σ, V, the material's saved update,
         // affine, order; grid m, p, v and the two contact inputs. The trial F is not kept: no
-        // adjoint stage reads it (the SVD's adjoint works from U, σ, V).
+        // adjoint stage reads it (the SVD's adjoint works from U, σ, V). The grid is an upper
+        // bound: a record packs the active spans only (`PackedGrid`).
         particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 24 + 72 + 72 + 72 + 4) + nodes * (8 + 4 * 24)
     }
 }
