@@ -20,21 +20,13 @@ pub fn gravity_adjoint(
     // Only the active spans hold non-empty nodes, visited in index order as the dense loop
     // would: the same sum, bit for bit.
     let mut sum = DVec3::ZERO;
-    let mut add = |range: std::ops::Range<usize>| {
-        for (v, &m) in adj.velocity[range.clone()].iter().zip(&grid.mass[range]) {
+    let spans = grid.active.as_ref().map(|a| a.span.as_slice());
+    for_span_ranges(spans, grid.mass.len(), grid.n[2], |r| {
+        for (v, &m) in adj.velocity[r.clone()].iter().zip(&grid.mass[r]) {
             if m > m_min {
                 sum += *v;
             }
         }
-    };
-    match &grid.active {
-        Some(rows) => {
-            let nz = grid.n[2];
-            for (row, span) in rows.span.iter().enumerate() {
-                add(row * nz + span[0] as usize..row * nz + span[1] as usize);
-            }
-        }
-        None => add(0..grid.mass.len()),
-    }
+    });
     g.0 += sum * params.dt_sub;
 }

@@ -14,7 +14,6 @@ use crate::sim::{run_in, Simulation};
 use crate::systems::{self, new_schedule, Stage, SubstepPlan};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
-use std::ops::Range;
 use std::time::Instant;
 
 type StartQuery<'a> = (
@@ -212,21 +211,6 @@ struct PackedGrid {
     wall_input: Vec<DVec3>,
 }
 
-/// Calls `f(range)` for each node range of the spans (x-major rows of `nz` nodes), in order,
-/// or once for every node.
-fn for_spans(spans: Option<&[[u32; 2]]>, nodes: usize, nz: usize, mut f: impl FnMut(Range<usize>)) {
-    match spans {
-        Some(spans) => {
-            for (row, s) in spans.iter().enumerate() {
-                if s[1] > s[0] {
-                    f(row * nz + s[0] as usize..row * nz + s[1] as usize);
-                }
-            }
-        }
-        None => f(0..nodes),
-    }
-}
-
 /// Makes room for `n` values in a packed buffer: twice that when it must grow, so that a
 /// spreading powder reallocates a record's buffers a few times in a run, not every substep.
 fn make_room<T>(v: &mut Vec<T>, n: usize) {
@@ -251,7 +235,7 @@ impl PackedGrid {
         }
         let nodes = grid.mass.len();
         let mut count = 0;
-        for_spans(self.spans.as_deref(), nodes, grid.n[2], |r| {
+        for_span_ranges(self.spans.as_deref(), nodes, grid.n[2], |r| {
             count += r.len()
         });
         make_room(&mut self.mass, count);
@@ -259,7 +243,7 @@ impl PackedGrid {
         make_room(&mut self.velocity, count);
         make_room(&mut self.collider_input, count);
         make_room(&mut self.wall_input, count);
-        for_spans(self.spans.as_deref(), nodes, grid.n[2], |r| {
+        for_span_ranges(self.spans.as_deref(), nodes, grid.n[2], |r| {
             self.mass.extend_from_slice(&grid.mass[r.clone()]);
             self.momentum.extend_from_slice(&grid.momentum[r.clone()]);
             self.velocity.extend_from_slice(&grid.velocity[r.clone()]);
@@ -280,13 +264,13 @@ impl PackedGrid {
         let g = &mut *grid;
         let (n, nodes) = (g.n, g.mass.len());
         let old = g.active.as_ref().map(|a| a.span.as_slice());
-        for_spans(old, nodes, n[2], |r| {
+        for_span_ranges(old, nodes, n[2], |r| {
             g.mass[r.clone()].fill(0.0);
             g.momentum[r.clone()].fill(DVec3::ZERO);
             g.velocity[r].fill(DVec3::ZERO);
         });
         let mut at = 0;
-        for_spans(self.spans.as_deref(), nodes, n[2], |r| {
+        for_span_ranges(self.spans.as_deref(), nodes, n[2], |r| {
             let k = r.len();
             g.mass[r.clone()].copy_from_slice(&self.mass[at..at + k]);
             g.momentum[r.clone()].copy_from_slice(&self.momentum[at..at + k]);
@@ -308,7 +292,7 @@ impl PackedGrid {
                 return;
             }
             let mut at = 0;
-            for_spans(spans, nodes, n[2], |r| {
+            for_span_ranges(spans, nodes, n[2], |r| {
                 let k = r.len();
                 input[r].copy_from_slice(&packed[at..at + k]);
                 at += k;

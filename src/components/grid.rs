@@ -121,6 +121,28 @@ impl ActiveRows {
     }
 }
 
+/// Calls `f(range)` for each flat node range of `spans` (per-row spans as in
+/// [`ActiveRows::span`], rows of `nz` nodes), in index order, skipping empty ones; or once for
+/// all `nodes` when `spans` is `None`. The sequential walk over the active part, for sums that
+/// need a fixed order and for copies.
+pub fn for_span_ranges(
+    spans: Option<&[[u32; 2]]>,
+    nodes: usize,
+    nz: usize,
+    mut f: impl FnMut(std::ops::Range<usize>),
+) {
+    match spans {
+        Some(spans) => {
+            for (row, s) in spans.iter().enumerate() {
+                if s[1] > s[0] {
+                    f(row * nz + s[0] as usize..row * nz + s[1] as usize);
+                }
+            }
+        }
+        None => f(0..nodes),
+    }
+}
+
 /// Calls `f(index, node)` for every node of `nodes`, an x-major array of a grid of `n` nodes,
 /// that lies in a span of `active`, or for every node when `active` is `None`; one x-plane per
 /// parallel task, each plane's nodes in index order. The result of a per-node `f` does not
