@@ -117,7 +117,7 @@ def main():
     lev["active-block grid (sand_box)"] = rows
     for name, without, with_, kind in LEVERS:
         rows = []
-        w_exe = exe["now"] if with_ == "2e24448" else build(with_, out / f"powderlab-{with_}")
+        w_exe = build(with_, out / f"powderlab-{with_}")
         for _ in range(a.pairs if kind == "forward" else 1):
             if kind == "forward":
                 on = bench(w_exe, "sand_box.ron", "--threads", "2")
