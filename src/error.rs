@@ -53,6 +53,8 @@ pub enum SceneError {
         file: PathBuf,
         cause: std::io::Error,
     },
+    #[error("{name}: no such scene file, and no shipped scene of that name; give the path to a .ron file, or one of the shipped scenes: {shipped}")]
+    Unknown { name: String, shipped: String },
     #[error("{file}:{line}:{col}: {message}; fix the scene file (all fields are documented in scenes/README.md)")]
     Parse {
         file: PathBuf,

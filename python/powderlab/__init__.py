@@ -7,12 +7,13 @@ same bits here as in ``powderlab`` on the command line, for any thread count.
 Quick start::
 
     import powderlab
-    scene = powderlab.Scene.load("scenes/powder_transport.ron")
+    scene = powderlab.Scene.shipped("powder_transport")  # or Scene.load("my_scene.ron")
     r = powderlab.rollout(scene, grad=True)
     print(r["loss"], r["indicator"], r["grad_theta"])
 
 Submodules: ``powderlab.envs`` (Gymnasium environments, needs ``gymnasium``) and
-``powderlab.distributed`` (rollouts as Ray tasks, needs ``ray``).
+``powderlab.distributed`` (rollouts as Ray tasks, needs ``ray``). ``powderlab.scenes()`` lists
+the scenes shipped inside the package.
 """
 
 from ._powderlab import (
@@ -21,8 +22,9 @@ from ._powderlab import (
     Simulation,
     SimulationError,
     rollout,
+    scenes,
     version,
 )
 
-__all__ = ["Scene", "SceneError", "Simulation", "SimulationError", "rollout", "version"]
+__all__ = ["Scene", "SceneError", "Simulation", "SimulationError", "rollout", "scenes", "version"]
 __version__ = version()

@@ -22,6 +22,12 @@ class Scene:
     def load(path: _Path) -> Scene:
         """Loads and checks a scene file (RON); raises SceneError on the first problem."""
     @staticmethod
+    def shipped(name: str) -> Scene:
+        """The shipped scene ``name`` (see ``scenes()``); raises SceneError listing them."""
+    @staticmethod
+    def resolve(path: _Path) -> Scene:
+        """A scene file's path, or a shipped scene's bare name where no such file exists."""
+    @staticmethod
     def from_str(text: str, name: str = "<string>") -> Scene:
         """Parses a scene from RON text; `name` stands for the file name in messages."""
     def to_ron(self) -> str:
@@ -121,6 +127,8 @@ def rollout(
     grad=True. The GIL is released while it runs."""
 
 def version() -> str: ...
+def scenes() -> List[str]:
+    """The names of the scenes shipped with the package, for ``Scene.shipped``."""
 
 def policy_dataset_config(
     scene: Scene,

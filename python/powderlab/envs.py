@@ -35,20 +35,13 @@ from . import Scene, Simulation, rollout
 
 SceneLike = Union[str, "os.PathLike[str]", Scene]
 
-# The scenes folder of a source checkout (python/powderlab/ -> ../../scenes).
-_SCENES = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "scenes")
-
-
 def resolve_scene(scene: SceneLike) -> Scene:
-    """A Scene from a Scene, a path, or the name of a shipped scene (``"powder_transport"``)."""
+    """A Scene from a Scene, a path, or the name of a shipped scene (``"powder_transport"``,
+    see ``powderlab.scenes()``): the shipped scenes are inside the package, so the defaults
+    work from any folder. A file of that name in the working folder wins over a shipped one."""
     if isinstance(scene, Scene):
         return scene
-    path = os.fspath(scene)
-    if not os.path.exists(path) and os.sep not in path and not path.endswith(".ron"):
-        shipped = os.path.join(_SCENES, path + ".ron")
-        if os.path.exists(shipped):
-            path = shipped
-    return Scene.load(path)
+    return Scene.resolve(os.fspath(scene))
 
 
 class _Randomized:

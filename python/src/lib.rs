@@ -91,6 +91,24 @@ impl Scene {
             .map_err(scene_err)
     }
 
+    /// The shipped scene `name` (see `powderlab.scenes()`), compiled into the package so that it
+    /// loads from any working folder. Raises SceneError listing the shipped names otherwise.
+    #[staticmethod]
+    fn shipped(name: &str) -> PyResult<Scene> {
+        RsScene::shipped(name)
+            .map(|inner| Scene { inner })
+            .map_err(scene_err)
+    }
+
+    /// A scene from a path, or from a shipped scene's name when no such file exists and the
+    /// argument is a bare name (no folder, no `.ron`): what the environments' `scene` takes.
+    #[staticmethod]
+    fn resolve(path: PathBuf) -> PyResult<Scene> {
+        RsScene::resolve(&path)
+            .map(|inner| Scene { inner })
+            .map_err(scene_err)
+    }
+
     /// Parses a scene from RON text; `name` stands for the file name in messages.
     #[staticmethod]
     #[pyo3(signature = (text, name = "<string>"))]
@@ -338,6 +356,12 @@ fn rollout<'py>(
     Ok(d)
 }
 
+/// The names of the scenes shipped with the package, for `Scene.shipped`.
+#[pyfunction]
+fn scenes() -> Vec<&'static str> {
+    powderlab::scene::shipped::names().collect()
+}
+
 /// The version of the Rust library the bindings were built from.
 #[pyfunction]
 fn version() -> &'static str {
@@ -350,6 +374,7 @@ fn _powderlab(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<simulation::Simulation>()?;
     m.add_function(wrap_pyfunction!(rollout, m)?)?;
     m.add_function(wrap_pyfunction!(version, m)?)?;
+    m.add_function(wrap_pyfunction!(scenes, m)?)?;
     m.add_function(wrap_pyfunction!(policy::policy_dataset_config, m)?)?;
     m.add_function(wrap_pyfunction!(policy::policy_dataset_claim, m)?)?;
     m.add_function(wrap_pyfunction!(policy::policy_dataset_scene, m)?)?;

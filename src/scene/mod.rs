@@ -8,6 +8,7 @@
 //! - [`types`]: what a scene file holds;
 //! - [`parse`]: reading it, with the line and column of every error;
 //! - [`validate`]: every field's range and every cross-reference;
+//! - [`shipped`]: the scenes of `scenes/`, compiled in and loaded by name;
 //! - [`prepare`]: the checks that need the scene's derived data (the particle fills, the tools'
 //!   control sequences, the memory they take, the stable substep), and that data.
 //!
@@ -20,6 +21,7 @@ pub mod parse;
 pub mod plan;
 pub mod prepare;
 pub mod randomize;
+pub mod shipped;
 pub mod types;
 pub mod validate;
 pub mod work;
