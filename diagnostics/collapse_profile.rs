@@ -9,7 +9,7 @@
 //! thresholds t (in L₀), the validation's one-cell front, percentiles of x, and the
 //! validation's front every 0.5 T_c.
 
-use powderlab::validate::{run_collapse, Collapse, COLLAPSE_SLAB_CELLS};
+use powderlab::lab::validate::{run_collapse, Collapse, COLLAPSE_SLAB_CELLS};
 
 /// Argument `k` (named `name` in errors), or `default` when it is absent.
 fn arg<T: std::str::FromStr>(k: usize, name: &str, default: T) -> anyhow::Result<T> {

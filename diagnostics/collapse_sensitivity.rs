@@ -16,7 +16,9 @@
 //! run-out would otherwise reach the far wall). STIFFNESS is E/(ρ·g·H₀), held fixed across the
 //! aspect ratios as the validation does.
 
-use powderlab::validate::{equal_height_cells, loglog_slope, lube_runout, run_collapse, Collapse};
+use powderlab::lab::validate::{
+    equal_height_cells, loglog_slope, lube_runout, run_collapse, Collapse,
+};
 
 fn usage() -> ! {
     eprintln!(

@@ -12,9 +12,9 @@
 //! `u = ∂L/∂Θ / ‖∂L/∂Θ‖` instead: where a rollout returns an unusually large gradient, this says
 //! whether the loss really is that steep there.
 
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::study::{along, parse_theta, regrid};
 use powderlab::scene::Scene;
-use powderlab::study::{along, parse_theta, regrid};
 use rayon::prelude::*;
 
 fn main() -> anyhow::Result<()> {

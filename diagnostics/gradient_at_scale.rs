@@ -12,9 +12,9 @@
 //!   of the components agree in sign. `H` (default 0.1) is the scale of an RMSprop step at the
 //!   paper's learning rate.
 
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::study::{cosine, norm, secant_thetas};
 use powderlab::scene::Scene;
-use powderlab::study::{cosine, norm, secant_thetas};
 use rayon::prelude::*;
 
 fn main() -> anyhow::Result<()> {

@@ -25,11 +25,11 @@
 
 use glam::DVec3;
 use powderlab::adjoint::loss::Loss;
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::optim::theta_init;
+use powderlab::lab::study::{cosine, norm, parse_theta, secant_thetas};
 use powderlab::math::sdf::Shape;
-use powderlab::optim::problem::Problem;
-use powderlab::optim::theta_init;
 use powderlab::scene::Scene;
-use powderlab::study::{cosine, norm, parse_theta, secant_thetas};
 use rayon::prelude::*;
 
 /// Height above the cups' cavity floor, in cells, under which a grain outside both cups counts

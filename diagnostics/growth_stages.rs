@@ -3,8 +3,8 @@
 //! ms per substep of the study's timed steps (the 2nd to the 6th).
 //!
 //! `cargo run --release --example growth_stages`
+use powderlab::lab::study::growth::{plan, simulation, Series};
 use powderlab::scene::Scene;
-use powderlab::study::growth::{plan, simulation, Series};
 
 fn main() -> anyhow::Result<()> {
     let base = Scene::load("scenes/sand_box.ron")?;

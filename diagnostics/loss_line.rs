@@ -10,9 +10,9 @@
 //! set to `PPC` if given. Then sums up the `N − 1` differences between neighbours: the rise
 //! from end to end, the total variation, the share of the total variation in the steepest
 //! quarter of the intervals, and how many intervals go against the rise.
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::study::parse_theta;
 use powderlab::scene::Scene;
-use powderlab::study::parse_theta;
 use rayon::prelude::*;
 
 fn main() -> anyhow::Result<()> {

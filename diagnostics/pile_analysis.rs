@@ -8,13 +8,13 @@
 //! With RAMP > 0, gravity is ramped in over that time ([`smooth_ramp`]) instead of all at once.
 
 use powderlab::components::{Body, DeformationGradient, SimParams};
-use powderlab::scene::Scene;
-use powderlab::sim::{SimOptions, Simulation};
-use powderlab::validate::column::cauchy;
-use powderlab::validate::pile::{
+use powderlab::lab::validate::column::cauchy;
+use powderlab::lab::validate::pile::{
     davis_angle_deg, flank_of, pile_collapse, plane_strain_angle_deg, Pile,
 };
-use powderlab::validate::{collapse_scene, normalised_deposit, smooth_ramp};
+use powderlab::lab::validate::{collapse_scene, normalised_deposit, smooth_ramp};
+use powderlab::scene::Scene;
+use powderlab::sim::{SimOptions, Simulation};
 
 fn arg<T: std::str::FromStr>(k: usize, default: T) -> T {
     std::env::args()

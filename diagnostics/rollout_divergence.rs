@@ -21,9 +21,9 @@
 //! even where that particle moves much less than the fastest one. The first step where it
 //! passes `SWITCH` is reported with that particle's distance to every collider.
 
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::study::{along, parse_theta, regrid};
 use powderlab::scene::Scene;
-use powderlab::study::{along, parse_theta, regrid};
 
 /// `max|Δ₂ − 2Δ₁| / max|Δ₁|` above which a step counts as non-linear in ε: a smooth trajectory
 /// gives O(ε·curvature), about 1e-4 at ε = 1e-7 on the default scene, and a switch O(1).

@@ -9,9 +9,9 @@
 //! cargo run --release --example skill_clearance -- SCENE THETA [THETA ...]
 //! ```
 use powderlab::components::ColliderKind;
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::study::parse_theta;
 use powderlab::scene::Scene;
-use powderlab::study::parse_theta;
 
 fn main() -> anyhow::Result<()> {
     let a: Vec<String> = std::env::args().collect();

@@ -10,9 +10,9 @@
 //! `N` points `Θ + σ·ξ` (ξ standard normal, fixed seed) with the cosine of each to the secants,
 //! and the cosine of their mean (first-order randomised smoothing, Suh et al. 2022). The sizes
 //! of the sampled gradients are what `docs/results/skill_optimisation.md` discusses.
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::study::{cosine, norm, parse_theta};
 use powderlab::scene::Scene;
-use powderlab::study::{cosine, norm, parse_theta};
 use powderlab::util::SplitMix64;
 use rayon::prelude::*;
 

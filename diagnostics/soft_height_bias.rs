@@ -5,7 +5,7 @@
 //!
 //! `cargo run --release --example soft_height_bias [-- PIXEL_M]` (default one grid cell).
 
-use powderlab::calibrate::{self, params};
+use powderlab::lab::calibrate::{self, params};
 use powderlab::math::heightfield::{soft_heights, squared_error};
 use powderlab::scene::Scene;
 use powderlab::sim::{SimOptions, Simulation};

@@ -7,8 +7,8 @@
 //!
 //! `powderlab optimize` does the same with seeds, the baselines, resuming and the plots.
 
-use powderlab::optim::problem::Problem;
-use powderlab::optim::rmsprop::{RmsProp, RmsState};
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::optim::rmsprop::{RmsProp, RmsState};
 use powderlab::scene::Scene;
 
 fn main() -> anyhow::Result<()> {

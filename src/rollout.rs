@@ -4,7 +4,7 @@
 //! adjoint's gradients when asked for.
 //!
 //! The numbers are those of every other path through the simulator: the same scene and Θ give
-//! the same bits as [`Problem::evaluate`](crate::optim::problem::Problem) and `powderlab
+//! the same bits as [`Problem::evaluate`](crate::lab::optim::problem::Problem) and `powderlab
 //! gradcheck`'s adjoint column, for any thread count (`tests/rollout_matches_the_optimiser.rs`).
 
 use crate::adjoint::loss::scene_loss;

@@ -5,8 +5,8 @@
 
 mod common;
 
-use powderlab::calibrate::observation::Observed;
-use powderlab::calibrate::{self, params, AdamConfig, Calibration};
+use powderlab::lab::calibrate::observation::Observed;
+use powderlab::lab::calibrate::{self, params, AdamConfig, Calibration};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -192,7 +192,7 @@ fn bad_or_mismatched_observations_are_refused_in_one_line() {
     let pts: Vec<glam::DVec3> = (0..50)
         .map(|i| glam::DVec3::new(10.0 + i as f64, 12.0, 10.0))
         .collect();
-    std::fs::write(&mm, powderlab::calibrate::observation::cloud_ply(&pts)).unwrap();
+    std::fs::write(&mm, powderlab::lab::calibrate::observation::cloud_ply(&pts)).unwrap();
     let cases = [
         (malformed.to_str().unwrap().to_string(), "line 3: 1 values"),
         (
@@ -225,7 +225,11 @@ fn bad_or_mismatched_observations_are_refused_in_one_line() {
     let pts: Vec<glam::DVec3> = (0..50)
         .map(|i| glam::DVec3::new(0.02 + 0.001 * i as f64, 0.01, 0.01))
         .collect();
-    std::fs::write(&inside, powderlab::calibrate::observation::cloud_ply(&pts)).unwrap();
+    std::fs::write(
+        &inside,
+        powderlab::lab::calibrate::observation::cloud_ply(&pts),
+    )
+    .unwrap();
     let (code, err) = powderlab(&[
         "calibrate",
         scene,
@@ -370,8 +374,8 @@ fn one_layers_cloud_observed_apart_calibrates_that_layer() {
         "layer1.friction_deg=35",
     ]);
     assert_eq!(code, 0, "{err}");
-    let n = match powderlab::calibrate::observation::read(&obs).unwrap() {
-        powderlab::calibrate::observation::Observation::Cloud(p) => p.len(),
+    let n = match powderlab::lab::calibrate::observation::read(&obs).unwrap() {
+        powderlab::lab::calibrate::observation::Observation::Cloud(p) => p.len(),
         _ => panic!("a cloud"),
     };
     let scene_ = powderlab::scene::Scene::load(scene).unwrap();

@@ -7,7 +7,7 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::validate::{
+use powderlab::lab::validate::{
     equal_height_cells, lube_runout, run_collapse, Collapse, SMALL_A_SLOPE, SMALL_A_SLOPE_TOL,
 };
 

@@ -45,7 +45,7 @@ fn a_made_demonstration_is_fitted_back() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let demo = powderlab::demo::format::load(&dir).unwrap();
+    let demo = powderlab::lab::demo::format::load(&dir).unwrap();
     assert_eq!(demo.cameras.len(), 2);
     let index: Vec<usize> = demo.frames.iter().map(|f| f.0).collect();
     let (last, before) = index.split_last().unwrap();
@@ -142,11 +142,11 @@ fn a_malformed_demonstration_is_one_line_naming_the_file_and_field() {
     std::fs::create_dir_all(&dir).unwrap();
     let camera = r#"{"name": "front", "width": 4, "height": 3, "fx": 4, "fy": 4, "position": [0, 0.1, 0.3], "look_at": [0, 0, 0]}"#;
     let frame = r#"{"index": 0, "images": {"front": "f.png"}}"#;
-    let png = powderlab::render::encode_png(4, 3, &[0; 36]);
+    let png = powderlab::lab::render::encode_png(4, 3, &[0; 36]);
     std::fs::write(dir.join("f.png"), &png).unwrap();
     std::fs::write(
         dir.join("small.png"),
-        powderlab::render::encode_png(2, 2, &[0; 12]),
+        powderlab::lab::render::encode_png(2, 2, &[0; 12]),
     )
     .unwrap();
     let cases = [
@@ -181,7 +181,7 @@ fn a_malformed_demonstration_is_one_line_naming_the_file_and_field() {
     ];
     for (text, expected) in &cases {
         std::fs::write(dir.join("demo.json"), text).unwrap();
-        let e = powderlab::demo::format::load(&dir).err().unwrap();
+        let e = powderlab::lab::demo::format::load(&dir).err().unwrap();
         let json = dir.join("demo.json");
         assert!(e.starts_with(&json.display().to_string()), "{e}");
         assert!(e.contains(expected), "{e}");

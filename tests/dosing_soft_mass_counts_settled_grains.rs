@@ -8,7 +8,7 @@
 mod common;
 
 use powderlab::adjoint::loss::{scene_loss, Loss};
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
 
 /// Largest gap between the soft and the hard mass of a settled pour (g): a hundredth of the
 /// precise-dosing target, and a tenth of the best dose errors any method reaches on it. The
@@ -26,7 +26,7 @@ fn the_soft_mass_of_a_settled_pour_is_its_hard_count() {
     // Θ_init of the benchmark's seeds 0, 1, 3 and 5 pour 0.4 to 3.2 g.
     for k in [0, 1, 3, 5] {
         let mut sim = problem
-            .simulation(powderlab::optim::theta_init(k), false)
+            .simulation(powderlab::lab::optim::theta_init(k), false)
             .unwrap();
         sim.run(sim.horizon, |_| {}).unwrap();
         let (hard_g, _) = problem.indicator(&mut sim);

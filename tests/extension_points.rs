@@ -164,7 +164,7 @@ fn a_material_and_a_shape_defined_here_run_and_push_each_other() {
 fn the_adjoint_through_both_matches_central_differences() {
     let scene = scene();
     let groups = ["material", "tool", "v0"].map(String::from);
-    let r = powderlab::gradcheck::run(&scene, 8, &groups, Some(2), 256 << 20).unwrap();
+    let r = powderlab::lab::gradcheck::run(&scene, 8, &groups, Some(2), 256 << 20).unwrap();
     let rows: Vec<_> = r
         .rows
         .iter()

@@ -3,7 +3,7 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::validate::{free_fall, FREE_FALL_REL_TOL};
+use powderlab::lab::validate::{free_fall, FREE_FALL_REL_TOL};
 
 #[test]
 fn free_fall_matches_the_closed_form_to_round_off() {

@@ -4,7 +4,7 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
 use powderlab::util::SplitMix64;
 
 mod common;

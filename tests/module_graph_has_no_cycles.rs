@@ -161,6 +161,51 @@ fn related(a: &str, b: &str) -> bool {
         || b.starts_with(&format!("{a}::"))
 }
 
+/// Which modules each module imports (a module and its descendants count as one).
+fn edges(mods: &BTreeMap<String, String>) -> BTreeMap<String, BTreeSet<String>> {
+    let mut edges: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for (me, src) in mods {
+        let dir = mods.keys().any(|m| m.starts_with(&format!("{me}::"))) || me.is_empty();
+        for p in paths(&code(src)) {
+            if let Some(to) = resolve(&p, me, dir, mods) {
+                if !related(me, &to) {
+                    edges.entry(me.clone()).or_default().insert(to);
+                }
+            }
+        }
+    }
+    edges
+}
+
+/// The simulator and its adjoint stand alone: no module outside `lab` (the crate root, which
+/// only declares it, aside) names anything inside it, so the lab can be left out of a build
+/// (`--no-default-features`) and read apart.
+#[test]
+fn the_simulator_imports_nothing_of_the_lab() {
+    let mods = modules();
+    let lab: Vec<&String> = mods
+        .keys()
+        .filter(|m| related(m, "lab") && !m.is_empty())
+        .collect();
+    assert!(
+        lab.len() > 50 && mods.contains_key("lab::optim") && mods.contains_key("lab::study"),
+        "the lab's modules were not found under src/lab: {lab:?}"
+    );
+    let mut offenders = Vec::new();
+    for (me, to) in edges(&mods) {
+        if me.is_empty() || related(&me, "lab") {
+            continue;
+        }
+        for t in to.iter().filter(|t| !t.is_empty() && related(t, "lab")) {
+            offenders.push(format!("{me} → {t}"));
+        }
+    }
+    assert!(
+        offenders.is_empty(),
+        "core modules import the lab: {offenders:?}"
+    );
+}
+
 #[test]
 fn no_module_imports_one_that_imports_it_back() {
     let mods = modules();
@@ -169,17 +214,7 @@ fn no_module_imports_one_that_imports_it_back() {
         "{:?}",
         mods.keys()
     );
-    let mut edges: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
-    for (me, src) in &mods {
-        let dir = mods.keys().any(|m| m.starts_with(&format!("{me}::"))) || me.is_empty();
-        for p in paths(&code(src)) {
-            if let Some(to) = resolve(&p, me, dir, &mods) {
-                if !related(me, &to) {
-                    edges.entry(me.clone()).or_default().insert(to);
-                }
-            }
-        }
-    }
+    let edges = edges(&mods);
     // Depth-first search for a back edge; the cycle is reported as the path around it.
     fn visit(
         m: &str,
@@ -225,7 +260,7 @@ fn no_module_imports_one_that_imports_it_back() {
         "scene::validate",
         "scene::prepare",
     ] {
-        for above in ["sim", "sim::build", "adjoint", "adjoint::tape", "optim"] {
+        for above in ["sim", "sim::build", "adjoint", "adjoint::tape", "lab"] {
             assert!(
                 !edges
                     .get(below)

@@ -12,8 +12,8 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::optim::problem::Problem;
-use powderlab::optim::rmsprop::{RmsProp, RmsState};
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::optim::rmsprop::{RmsProp, RmsState};
 
 mod common;
 

@@ -60,7 +60,7 @@ fn smoothed_runs_its_samples_within_the_rollout_budget() {
 /// seed, a tenth of a spacing on average, and the scene's own packing bit for bit at 0.
 #[test]
 fn a_repacked_rollout_moves_the_powder_a_fraction_of_a_spacing_and_is_reproducible() {
-    use powderlab::optim::problem::Problem;
+    use powderlab::lab::optim::problem::Problem;
     let scene = powderlab::scene::Scene::load(SCENE).unwrap();
     let spacing = scene.particle_spacing(&scene.bodies[0]);
     let p = Problem::new(scene, 1 << 30).unwrap();

@@ -6,10 +6,10 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::validate::pile::{
+use powderlab::lab::validate::pile::{
     flank_of, pile_collapse, plane_strain_angle_deg, Pile, MIN_FLANK_POINTS, PILE_FRICTION_DEG,
 };
-use powderlab::validate::run_collapse;
+use powderlab::lab::validate::run_collapse;
 use serde_json::Value;
 use std::process::Command;
 

@@ -3,11 +3,11 @@
 //! commands end to end on a small scene.
 #![cfg(feature = "lab")]
 
-use powderlab::policy::dataset::{self, gauss_newton, Sample};
-use powderlab::policy::features::layout;
-use powderlab::policy::knob;
-use powderlab::policy::net::{fit, is_answer, select, train, usable, Policy, TrainConfig};
-use powderlab::policy::reinforce::{finetune, ReinforceConfig};
+use powderlab::lab::policy::dataset::{self, gauss_newton, Sample};
+use powderlab::lab::policy::features::layout;
+use powderlab::lab::policy::knob;
+use powderlab::lab::policy::net::{fit, is_answer, select, train, usable, Policy, TrainConfig};
+use powderlab::lab::policy::reinforce::{finetune, ReinforceConfig};
 use powderlab::scene::randomize::Draw;
 use powderlab::scene::Scene;
 use powderlab::util::SplitMix64;
@@ -143,7 +143,7 @@ fn the_mlp_fits_a_small_smooth_map() {
     assert!(last < 0.05 * var, "MSE {last} against a variance of {var}");
     let s = &samples[17];
     let got = policy.act(&s.features).unwrap();
-    assert_eq!(got.len(), powderlab::policy::net::OUTPUTS);
+    assert_eq!(got.len(), powderlab::lab::policy::net::OUTPUTS);
     let err = (got[0] - s.theta[knob::KNOB]).powi(2);
     assert!(err < 0.2 * var, "one sample's error {err}");
 }
@@ -247,7 +247,7 @@ fn an_ensemble_is_the_mean_of_its_members() {
     let d = scratch("ensemble");
     let path = d.join("policy.safetensors");
     f.policy.save(&path).unwrap();
-    let q = Policy::load(&path, &layout(), powderlab::policy::net::OUTPUTS).unwrap();
+    let q = Policy::load(&path, &layout(), powderlab::lab::policy::net::OUTPUTS).unwrap();
     assert_eq!(q.members.len(), 3);
     assert_eq!(q.fingerprint().unwrap(), f.policy.fingerprint().unwrap());
     // Members of other standardisations are not one policy.
@@ -307,7 +307,7 @@ fn a_policy_of_another_feature_layout_is_refused_by_name() {
     let p = Policy::new(names, 8, vec![0.0; 3], vec![1.0; 3], &[0.0], 0).unwrap();
     let path = d.join("old.safetensors");
     p.save(&path).unwrap();
-    let e = match Policy::load(&path, &layout(), powderlab::policy::net::OUTPUTS) {
+    let e = match Policy::load(&path, &layout(), powderlab::lab::policy::net::OUTPUTS) {
         Ok(_) => panic!(
             "a policy of 3 features was loaded for a layout of {}",
             layout().len()
@@ -323,7 +323,7 @@ fn a_policy_of_another_feature_layout_is_refused_by_name() {
     assert_eq!(e.lines().count(), 1, "{e}");
     // Its own layout loads, with the same answers.
     let names = p.layout.clone();
-    let q = Policy::load(&path, &names, powderlab::policy::net::OUTPUTS).unwrap();
+    let q = Policy::load(&path, &names, powderlab::lab::policy::net::OUTPUTS).unwrap();
     assert_eq!(q.fingerprint().unwrap(), p.fingerprint().unwrap());
     assert_eq!(
         q.act(&[0.1, 0.2, 0.3]).unwrap(),
@@ -342,7 +342,7 @@ fn a_policy_of_another_feature_layout_is_refused_by_name() {
     five.save(&path).unwrap();
     let e = format!(
         "{:#}",
-        Policy::load(&path, &names, powderlab::policy::net::OUTPUTS)
+        Policy::load(&path, &names, powderlab::lab::policy::net::OUTPUTS)
             .err()
             .unwrap()
     );

@@ -1,11 +1,11 @@
-//! The gravimetric pour (`powderlab::policy::pour`): what it adds to the cup is what its load
+//! The gravimetric pour (`powderlab::lab::policy::pour`): what it adds to the cup is what its load
 //! cell read, a dose of nothing pours nothing, and settings it cannot run are refused.
 #![cfg(feature = "lab")]
 
-use powderlab::optim::problem::Problem;
-use powderlab::policy::dataset::{problem_of, spec_of};
-use powderlab::policy::knob;
-use powderlab::policy::pour::{rollout, Gravimetric};
+use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::policy::dataset::{problem_of, spec_of};
+use powderlab::lab::policy::knob;
+use powderlab::lab::policy::pour::{rollout, Gravimetric};
 use powderlab::scene::Scene;
 
 mod common;

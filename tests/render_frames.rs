@@ -7,7 +7,7 @@
 mod common;
 
 use glam::DVec3;
-use powderlab::render::{self, camera, Camera};
+use powderlab::lab::render::{self, camera, Camera};
 use std::process::Command;
 
 fn pixel(rgb: &[u8], cam: &Camera, x: DVec3) -> [u8; 3] {

@@ -8,7 +8,7 @@ use powderlab::scene::Scene;
 #[cfg(feature = "lab")]
 #[test]
 fn rollout_gives_the_optimisers_loss_indicator_and_gradient() {
-    use powderlab::optim::problem::Problem;
+    use powderlab::lab::optim::problem::Problem;
     let scene = Scene::load("tests/scenes/tiny_transport.ron").unwrap();
     let theta = [0.1, -0.4, 0.5, -0.2, 0.6];
     let problem = Problem::new(scene.clone(), 1 << 30).unwrap();

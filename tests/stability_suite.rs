@@ -4,7 +4,7 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::validate::stability::{cases, run_case, Outcome};
+use powderlab::lab::validate::stability::{cases, run_case, Outcome};
 
 #[test]
 fn every_case_is_stable_or_refused() {

@@ -80,7 +80,7 @@ fn the_benchmark_scores_every_method_at_equal_compute_and_resumes() {
             .iter()
             .map(|g| {
                 if *g {
-                    1.0 + powderlab::optim::report::BACKWARD_COST
+                    1.0 + powderlab::lab::optim::report::BACKWARD_COST
                 } else {
                     1.0
                 }

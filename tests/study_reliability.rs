@@ -4,7 +4,7 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::study::reliability::{self, Config, Outcome};
+use powderlab::lab::study::reliability::{self, Config, Outcome};
 use std::path::Path;
 
 const SEED: &str = concat!(

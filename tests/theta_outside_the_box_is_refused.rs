@@ -3,7 +3,7 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::optim::problem::Problem;
+use powderlab::lab::optim::problem::Problem;
 use powderlab::scene::Scene;
 
 #[test]

@@ -55,12 +55,12 @@ fn scene(dx: f64, material: &str) -> String {
 fn slide(dx: f64, material: &str) -> f64 {
     let scene = common::parse(&scene(dx, material)).unwrap_or_else(|e| panic!("{e}"));
     let mut sim = common::build(&scene, 2);
-    let x0 = powderlab::validate::mean_x(&mut sim);
+    let x0 = powderlab::lab::validate::mean_x(&mut sim);
     for _ in 0..100 {
         sim.step().unwrap_or_else(|e| panic!("{e}"));
     }
     common::assert_finite(&mut sim);
-    powderlab::validate::mean_x(&mut sim) - x0
+    powderlab::lab::validate::mean_x(&mut sim) - x0
 }
 
 #[test]

@@ -5,7 +5,7 @@
 
 #![cfg(feature = "lab")]
 
-use powderlab::validate::{bar, column, incline, scale_invariance};
+use powderlab::lab::validate::{bar, column, incline, scale_invariance};
 
 #[test]
 fn vibrating_bar_period_within_one_percent() {

@@ -196,13 +196,14 @@ impl Scene {
     fn with_params(&self, params: BTreeMap<String, f64>) -> PyResult<Scene> {
         let names: Vec<String> = params.keys().cloned().collect();
         // The calibration's parameter names; its messages speak of the --fit flag.
-        let fit = powderlab::calibrate::params::parse(&self.inner, &names, &[]).map_err(|e| {
-            SceneError::new_err(format!(
-                "{}: {}",
-                self.inner.path.display(),
-                e.strip_prefix("--fit ").unwrap_or(&e)
-            ))
-        })?;
+        let fit =
+            powderlab::lab::calibrate::params::parse(&self.inner, &names, &[]).map_err(|e| {
+                SceneError::new_err(format!(
+                    "{}: {}",
+                    self.inner.path.display(),
+                    e.strip_prefix("--fit ").unwrap_or(&e)
+                ))
+            })?;
         let mut inner = self.inner.clone();
         for (p, name) in fit.iter().zip(&names) {
             p.apply(&mut inner, params[name]);

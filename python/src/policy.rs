@@ -3,7 +3,7 @@
 //! dataset` does, into the same files.
 
 use crate::{to_py, Scene};
-use powderlab::policy::dataset::{self, Config};
+use powderlab::lab::policy::dataset::{self, Config};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use std::path::PathBuf;
@@ -28,7 +28,7 @@ pub fn policy_dataset_config(
 ) -> PyResult<String> {
     dataset::spec_of(&scene.inner).map_err(to_py)?;
     let cfg = Config {
-        scene_hash: powderlab::optim::fnv1a(&scene.inner.source),
+        scene_hash: powderlab::lab::optim::fnv1a(&scene.inner.source),
         scenes,
         budget,
         augment,

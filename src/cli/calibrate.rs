@@ -2,9 +2,9 @@
 //! adjoint; `powderlab observe`: what a camera would see of a scene (synthetic observations).
 
 use anyhow::{bail, Context, Result};
-use powderlab::calibrate::observation::{self, Observation};
-use powderlab::calibrate::plot::{curves_svg, Curve};
-use powderlab::calibrate::{self, params, AdamConfig, Calibration, Eval, Journal};
+use powderlab::lab::calibrate::observation::{self, Observation};
+use powderlab::lab::calibrate::plot::{curves_svg, Curve};
+use powderlab::lab::calibrate::{self, params, AdamConfig, Calibration, Eval, Journal};
 use powderlab::scene::Scene;
 use powderlab::util::{create_output_dir, write_atomic};
 use std::path::PathBuf;

@@ -1,8 +1,8 @@
 //! `powderlab demo make|fit`: synthetic demonstrations, and the skill fitted to one.
 
 use anyhow::{bail, Context, Result};
-use powderlab::demo::{self, fit::FitOptions, make::MakeOptions};
-use powderlab::render::{self, camera, Camera};
+use powderlab::lab::demo::{self, fit::FitOptions, make::MakeOptions};
+use powderlab::lab::render::{self, camera, Camera};
 use powderlab::scene::Scene;
 use powderlab::sim::{SimOptions, Simulation};
 use serde_json::json;
@@ -125,7 +125,7 @@ fn make(a: MakeArgs) -> Result<()> {
             let Some(base) = base else {
                 bail!("--spoon: {} has no spoon with a skill to replace", a.scene.display());
             };
-            let s = powderlab::render::silhouette::reshaped(
+            let s = powderlab::lab::render::silhouette::reshaped(
                 &base,
                 [r - base.bowl_radius, d - base.bowl_depth, l - base.handle_length],
             );

@@ -72,8 +72,14 @@ pub fn run(a: Args) -> Result<()> {
             scene.display()
         );
     }
-    let r =
-        powderlab::gradcheck::run_scaled(&sc, steps, &params, threads, budget_mb << 20, eps_scale)?;
+    let r = powderlab::lab::gradcheck::run_scaled(
+        &sc,
+        steps,
+        &params,
+        threads,
+        budget_mb << 20,
+        eps_scale,
+    )?;
     let passed = r.max_rel_error <= tol;
     if json_out {
         let mut v = serde_json::to_value(&r)?;

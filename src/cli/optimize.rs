@@ -136,7 +136,7 @@ pub fn run(args: Args) -> Result<()> {
         json: json_out,
     } = args;
     let init = init.as_deref().map(read_theta).transpose()?;
-    use powderlab::optim::{self, Method};
+    use powderlab::lab::optim::{self, Method};
     // No --method, or `default`: the benchmark's verdict at equal compute.
     let default_set = method.is_empty() || method == ["default"];
     let method = if method.is_empty() {

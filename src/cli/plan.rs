@@ -3,8 +3,8 @@
 //! (or the greedy and scripted baselines), from the scene's `plan` section.
 
 use anyhow::Result;
-use powderlab::plan::dosing::{dosing_plan, Method};
-use powderlab::plan::output::{plan_into, push_into};
+use powderlab::lab::plan::dosing::{dosing_plan, Method};
+use powderlab::lab::plan::output::{plan_into, push_into};
 use powderlab::scene::plan::PlanSpec;
 use powderlab::scene::Scene;
 use std::path::PathBuf;
@@ -172,7 +172,7 @@ fn push(a: Args, scene: Scene, plan: powderlab::scene::plan::PushPlan) -> Result
 }
 
 /// A plan's progress shown on `pb`: the rollouts so far and the last rollout's outcome.
-fn follow(pb: &indicatif::ProgressBar) -> powderlab::plan::journal::Progress {
+fn follow(pb: &indicatif::ProgressBar) -> powderlab::lab::plan::journal::Progress {
     let bar = pb.clone();
     Box::new(move |n, msg| {
         bar.set_position(n as u64);

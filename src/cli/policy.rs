@@ -3,12 +3,12 @@
 //! REINFORCE, `eval` compares it on held-out scenes, `apply` gives one scene's Θ.
 
 use anyhow::Result;
-use powderlab::policy::dataset::{self, Config};
-use powderlab::policy::eval::{self, Candidate, EvalConfig};
-use powderlab::policy::features::layout;
-use powderlab::policy::net::{self, Policy, TrainConfig};
-use powderlab::policy::reinforce::{self, ReinforceConfig};
-use powderlab::policy::tune;
+use powderlab::lab::policy::dataset::{self, Config};
+use powderlab::lab::policy::eval::{self, Candidate, EvalConfig};
+use powderlab::lab::policy::features::layout;
+use powderlab::lab::policy::net::{self, Policy, TrainConfig};
+use powderlab::lab::policy::reinforce::{self, ReinforceConfig};
+use powderlab::lab::policy::tune;
 use powderlab::scene::Scene;
 use std::path::PathBuf;
 
@@ -150,7 +150,7 @@ pub fn run(a: Args) -> Result<()> {
 /// The settings of a dataset of `scene`.
 fn dataset_config(scene: &Scene, d: &DatasetArgs) -> Config {
     Config {
-        scene_hash: powderlab::optim::fnv1a(&scene.source),
+        scene_hash: powderlab::lab::optim::fnv1a(&scene.source),
         scenes: d.scenes,
         budget: d.budget,
         augment: d.augment,
@@ -166,7 +166,7 @@ fn dataset_cmd(d: DatasetArgs) -> Result<()> {
     let cfg = dataset_config(&scene, &d);
     let per_scene = d.budget as f64
         + d.augment as f64
-            * (d.augment_steps as f64 * (1.0 + powderlab::optim::report::BACKWARD_COST) + 1.0);
+            * (d.augment_steps as f64 * (1.0 + powderlab::lab::optim::report::BACKWARD_COST) + 1.0);
     eprintln!(
         "{}: {} randomised scenes, at most {:.0} forward rollouts each ({} by the root search of the dose, {} perturbed copies of {} gradient steps); {} threads",
         d.scene.display(),
@@ -328,7 +328,7 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
         md += &format!(
             "| {m} | {:.3} | {:.3} | {ro:.1} |\n",
             err.iter().sum::<f64>() / err.len() as f64,
-            powderlab::optim::rmsprop::median(&err),
+            powderlab::lab::stats::median(&err),
         );
     }
     powderlab::util::write_atomic(&e.dir.join("eval.md"), md.as_bytes())?;

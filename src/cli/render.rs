@@ -1,7 +1,7 @@
 //! `powderlab render`: PNG frames of a run from one or more pinhole cameras.
 
 use anyhow::{bail, Context, Result};
-use powderlab::render::{self, camera, Camera};
+use powderlab::lab::render::{self, camera, Camera};
 use powderlab::scene::Scene;
 use powderlab::sim::{SimOptions, Simulation};
 use std::path::PathBuf;
@@ -11,7 +11,7 @@ use std::path::PathBuf;
 #[derive(clap::Args)]
 pub struct Args {
     scene: PathBuf,
-    /// Camera file (JSON, see `src/render/camera.rs`); default: one camera framing the scene
+    /// Camera file (JSON, see `src/lab/render/camera.rs`); default: one camera framing the scene
     /// from the front and above.
     #[arg(long)]
     cameras: Option<PathBuf>,

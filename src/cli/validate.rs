@@ -1,9 +1,9 @@
 //! `powderlab validate`: exact solutions and published experiments (the cases and their
-//! resolutions are [`powderlab::validate::suite`]'s), and the stability suite.
+//! resolutions are [`powderlab::lab::validate::suite`]'s), and the stability suite.
 
 use anyhow::{bail, Result};
+use powderlab::lab::validate::suite::{self, Case, Progress};
 use powderlab::util::check_output_file;
-use powderlab::validate::suite::{self, Case, Progress};
 use serde_json::json;
 use std::path::PathBuf;
 
@@ -129,7 +129,7 @@ fn duration(s: f64) -> String {
 
 /// `validate stability`: every case of the suite, as a Markdown table (and JSON).
 fn stability(threads: Option<usize>, json_out: bool, report: Option<PathBuf>) -> Result<()> {
-    use powderlab::validate::stability::{cases, markdown, run_case};
+    use powderlab::lab::validate::stability::{cases, markdown, run_case};
     let cases = cases();
     let pb = super::bar(cases.len() as u64, json_out);
     let mut results = Vec::new();

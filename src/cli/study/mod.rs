@@ -6,7 +6,7 @@ mod optimisation;
 mod tasks;
 
 use anyhow::{bail, Context, Result};
-use powderlab::study;
+use powderlab::lab::study;
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -170,7 +170,10 @@ pub fn run(a: Args) -> Result<()> {
     let plan = study::plan(a.quick, &scene, a.threads)?;
     // Fail fast on a scene the transport configurations cannot use.
     if let Some(cfg) = plan.iter().find(|c| c.case == study::Case::PowderTransport) {
-        powderlab::optim::problem::Problem::new(study::transport_scene(cfg)?, study::TAPE_BUDGET)?;
+        powderlab::lab::optim::problem::Problem::new(
+            study::transport_scene(cfg)?,
+            study::TAPE_BUDGET,
+        )?;
     }
     let exe = std::env::current_exe().context("cannot find this executable")?;
     let pb = super::bar(plan.len() as u64, a.json);
@@ -228,9 +231,9 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// `powderlab study growth` (`powderlab::study::growth`): each configuration in a child process.
+/// `powderlab study growth` (`powderlab::lab::study::growth`): each configuration in a child process.
 fn growth_cmd(a: Args) -> Result<()> {
-    use powderlab::study::growth;
+    use powderlab::lab::study::growth;
     if let Some(s) = &a.scene {
         bail!(
             "study growth: --scene {} is not used: the growth study runs its own variants of scenes/sand_box.ron (the Taichi reference's scene); leave --scene out",
@@ -331,10 +334,14 @@ fn growth_cmd(a: Args) -> Result<()> {
 pub(super) fn skill_problem(
     a: &Args,
     default: &str,
-) -> Result<(PathBuf, powderlab::optim::problem::Problem, &'static str)> {
+) -> Result<(
+    PathBuf,
+    powderlab::lab::optim::problem::Problem,
+    &'static str,
+)> {
     let scene = a.scene.clone().unwrap_or_else(|| PathBuf::from(default));
     let sc = powderlab::scene::Scene::load(&scene)?;
-    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
+    let problem = powderlab::lab::optim::problem::Problem::new(sc, 1 << 30)?;
     let unit = match problem.target {
         powderlab::scene::TargetValue::Particles(_) => "particles",
         powderlab::scene::TargetValue::Grams(_) => "g",

@@ -3,14 +3,14 @@
 
 use super::{print_page, skill_problem, Args};
 use anyhow::{bail, Context, Result};
-use powderlab::study;
+use powderlab::lab::study;
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
 
 /// `powderlab study landscape`: Sobol rollouts of a skill scene, best-of-k, main effects.
 pub(super) fn landscape_cmd(a: Args) -> Result<()> {
-    use powderlab::study::landscape;
+    use powderlab::lab::study::landscape;
     let scene = a
         .scene
         .clone()
@@ -20,7 +20,7 @@ pub(super) fn landscape_cmd(a: Args) -> Result<()> {
         bail!("study landscape: --samples {n}: expected at least 2");
     }
     let sc = powderlab::scene::Scene::load(&scene)?;
-    let problem = powderlab::optim::problem::Problem::new(sc, 1 << 30)?;
+    let problem = powderlab::lab::optim::problem::Problem::new(sc, 1 << 30)?;
     let unit = match problem.target {
         powderlab::scene::TargetValue::Particles(_) => "particles",
         powderlab::scene::TargetValue::Grams(_) => "g",
@@ -57,7 +57,7 @@ pub(super) fn landscape_cmd(a: Args) -> Result<()> {
 
 /// `powderlab study optimizers`: every method on paired seeds at equal compute.
 pub(super) fn optimizers_cmd(a: Args) -> Result<()> {
-    use powderlab::optim::Method;
+    use powderlab::lab::optim::Method;
     let tasks = if a.tasks.is_empty() {
         vec![
             PathBuf::from("scenes/powder_transport.ron"),
@@ -135,7 +135,7 @@ pub(super) fn optimizers_cmd(a: Args) -> Result<()> {
 
 /// `powderlab study directions`: each loss's gradient against the dose error's secants.
 pub(super) fn directions_cmd(a: Args) -> Result<()> {
-    use powderlab::study::directions;
+    use powderlab::lab::study::directions;
     let (scene, problem, unit) = skill_problem(&a, "scenes/powder_transport.ron")?;
     let landscape = a.results.join("landscape.csv");
     let mut points = directions::default_points(Some(&landscape));
@@ -174,7 +174,7 @@ pub(super) fn directions_cmd(a: Args) -> Result<()> {
 /// `powderlab study refine`: trajectory refinement by dimension, the adjoint against CMA-ES
 /// and random search at equal compute.
 pub(super) fn refine_cmd(a: Args) -> Result<()> {
-    use powderlab::study::refine;
+    use powderlab::lab::study::refine;
     if a.knots.is_empty() || a.knots.contains(&0) || a.seeds == 0 || a.budget == 0 {
         bail!("study refine: --knots, --seeds and --budget must be at least 1");
     }

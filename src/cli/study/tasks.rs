@@ -10,7 +10,7 @@ use std::time::Instant;
 /// `powderlab study demonstration`: five synthetic demonstrations filmed and fitted back, and
 /// an expert's demonstration as the warm start of an optimisation.
 pub(super) fn demonstration_cmd(a: Args) -> Result<()> {
-    use powderlab::study::demonstration::{self, Setup};
+    use powderlab::lab::study::demonstration::{self, Setup};
     let scene_path = "scenes/powder_transport.ron";
     let scene = powderlab::scene::Scene::load(scene_path)?;
     let setup = Setup {
@@ -30,16 +30,19 @@ pub(super) fn demonstration_cmd(a: Args) -> Result<()> {
             "the warm start: an expert's demonstration, then CMA-ES from it and from random starts"
         );
     }
-    let warm =
-        powderlab::study::warm_start::run(&scene, &a.out.join("demonstration/warm_start"), &setup)?;
-    let machine = powderlab::study::optimizers::machine();
+    let warm = powderlab::lab::study::warm_start::run(
+        &scene,
+        &a.out.join("demonstration/warm_start"),
+        &setup,
+    )?;
+    let machine = powderlab::lab::study::optimizers::machine();
     let md = demonstration::report(
         &rows,
         scene_path,
         &setup,
         "powderlab study demonstration",
         &machine,
-    ) + &powderlab::study::warm_start::report(&warm);
+    ) + &powderlab::lab::study::warm_start::report(&warm);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("demonstration.md"), md.as_bytes())?;
     print_page(
@@ -56,8 +59,8 @@ pub(super) fn demonstration_cmd(a: Args) -> Result<()> {
 /// randomised instances, A* against greedy and scripted (`--seeds` instances of each, 10 by
 /// default).
 pub(super) fn planning_cmd(a: Args) -> Result<()> {
-    use powderlab::plan::dosing::Method;
-    use powderlab::study::planning;
+    use powderlab::lab::plan::dosing::Method;
+    use powderlab::lab::study::planning;
     // The two tasks' scenes, or those `--tasks` names (a push plan or a dosing plan each).
     let tasks = if a.tasks.is_empty() {
         vec![
@@ -92,7 +95,7 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
         .as_ref()
         .map_or(Vec::new(), |_| planning::instances(a.seeds, 2026));
     let pushes = push.as_ref().map_or(Vec::new(), |_| {
-        powderlab::study::push::push_instances(a.seeds, 2027)
+        powderlab::lab::study::push::push_instances(a.seeds, 2027)
     });
     let pb = super::super::bar(
         ((instances.len() + pushes.len()) * methods.len()) as u64,
@@ -114,7 +117,7 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
         None => Vec::new(),
     };
     let push_rows = match &push {
-        Some(scene) => powderlab::study::push::run_push(
+        Some(scene) => powderlab::lab::study::push::run_push(
             scene,
             &a.out.join("planning/push"),
             &pushes,
@@ -132,8 +135,11 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
         a.seeds,
         a.out.display()
     );
-    let md = planning::report(&rows, &command, &powderlab::study::optimizers::machine())
-        + &powderlab::study::push::push_report(&push_rows);
+    let md = planning::report(
+        &rows,
+        &command,
+        &powderlab::lab::study::optimizers::machine(),
+    ) + &powderlab::lab::study::push::push_report(&push_rows);
     powderlab::util::create_output_dir(&a.results, "--results")?;
     powderlab::util::write_atomic(&a.results.join("planning.md"), md.as_bytes())?;
     print_page(
@@ -150,8 +156,8 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
 /// labelled scenes with 2 perturbed copies each and their hindsight samples, the fit, the
 /// fine-tune, 20 held-out scenes).
 pub(super) fn policy_cmd(a: Args) -> Result<()> {
-    use powderlab::policy::{dataset, eval, net, reinforce};
-    use powderlab::study::policy;
+    use powderlab::lab::policy::{dataset, eval, net, reinforce};
+    use powderlab::lab::study::policy;
     let path = a
         .scene
         .clone()
@@ -160,7 +166,7 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
     dataset::spec_of(&scene)?;
     let settings = policy::Settings {
         dataset: dataset::Config {
-            scene_hash: powderlab::optim::fnv1a(&scene.source),
+            scene_hash: powderlab::lab::optim::fnv1a(&scene.source),
             scenes: dataset::SCENES,
             budget: 10,
             augment: 2,
@@ -191,7 +197,7 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
         &settings,
         &scene,
         &command,
-        &powderlab::study::optimizers::machine(),
+        &powderlab::lab::study::optimizers::machine(),
     );
     powderlab::util::create_output_dir(&a.results, "--results")?;
     policy::figure(&a.results.join("policy.svg"), &o.curve, &o.iterations)?;
@@ -209,7 +215,7 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
 /// `powderlab study pour`: the gravimetric pour on the policy page's held-out draws, at dx =
 /// 5 mm (20) and 2.5 mm (the first 6).
 pub(super) fn pour_cmd(a: Args) -> Result<()> {
-    use powderlab::study::pour;
+    use powderlab::lab::study::pour;
     let load = |p: &str| powderlab::scene::Scene::load(p);
     let coarse_scene = load("scenes/policy_dosing.ron")?;
     let fine_scene = load("scenes/policy_dosing_fine.ron")?;
@@ -220,7 +226,7 @@ pub(super) fn pour_cmd(a: Args) -> Result<()> {
         faster_turn_back_deg: 720.0,
         // Taps of half a millimetre past 50°, below where a tilt alone starts the outflow (about
         // 63°), with the tilt creeping at 3°/s so the flow does not stall, up to 70°.
-        tapped: powderlab::policy::pour::Gravimetric {
+        tapped: powderlab::lab::policy::pour::Gravimetric {
             speed_deg: 3.0,
             fast_to_deg: 50.0,
             max_deg: 70.0,
@@ -231,7 +237,7 @@ pub(super) fn pour_cmd(a: Args) -> Result<()> {
     };
     let start = Instant::now();
     let dir = a.out.join("pour");
-    let faster = powderlab::policy::pour::Gravimetric {
+    let faster = powderlab::lab::policy::pour::Gravimetric {
         turn_back_deg: Some(settings.faster_turn_back_deg),
         ..settings.pour
     };
@@ -271,7 +277,7 @@ pub(super) fn pour_cmd(a: Args) -> Result<()> {
         policy.as_deref(),
         &settings,
         &command,
-        &powderlab::study::optimizers::machine(),
+        &powderlab::lab::study::optimizers::machine(),
         POUR_MINUTES,
         match coarse_scene
             .colliders
@@ -302,7 +308,7 @@ const POUR_MINUTES: f64 = 11.0;
 /// `powderlab study calibration`: recovery of known parameters from noisy synthetic
 /// observations, Adam and BFGS on the adjoint against CMA-ES at equal compute.
 pub(super) fn calibration_cmd(a: Args) -> Result<()> {
-    use powderlab::study::calibration;
+    use powderlab::lab::study::calibration;
     if a.seeds == 0 || a.budget == 0 {
         bail!("study calibration: --seeds and --budget must be at least 1");
     }
@@ -352,7 +358,7 @@ pub(super) fn calibration_cmd(a: Args) -> Result<()> {
         a.seeds, a.budget
     );
     powderlab::util::create_output_dir(&a.results, "--results")?;
-    let machine = powderlab::study::optimizers::machine();
+    let machine = powderlab::lab::study::optimizers::machine();
     let mut md = calibration::report(&outcome, &command, &machine, budget, &a.results)?;
     md.push_str(&calibration::layers::report(
         &outcome.layers,
@@ -373,7 +379,7 @@ pub(super) fn calibration_cmd(a: Args) -> Result<()> {
 /// `study reliability`: `simulate` on mutated scenes under a memory cap and a timeout; writes
 /// docs/results/reliability.md. Resumes from OUT/reliability/cases.jsonl.
 pub(super) fn reliability_cmd(a: Args) -> Result<()> {
-    use powderlab::study::reliability;
+    use powderlab::lab::study::reliability;
     let cfg = reliability::Config {
         cases: a.cases,
         cap_bytes: (a.cap_gb * (1u64 << 30) as f64) as u64,
@@ -400,7 +406,7 @@ pub(super) fn reliability_cmd(a: Args) -> Result<()> {
         &records,
         &cfg,
         &command,
-        &powderlab::study::optimizers::machine(),
+        &powderlab::lab::study::optimizers::machine(),
     );
     let page = a.results.join("reliability.md");
     std::fs::create_dir_all(&a.results)
