@@ -24,7 +24,7 @@ fn main() {
     let calibrate::observation::Observation::Heights { grid, heights } = obs else {
         unreachable!("a height map was asked for")
     };
-    let base = calibrate::floor_height(&scene);
+    let base = scene.floor_height();
     let top = 0.5 * scene.particle_spacing(&scene.bodies[0]);
     let states: Vec<(f64, Vec<glam::DVec3>)> = [28.0, 30.0, 31.0, 32.0, 33.0, 34.0, 36.0]
         .into_iter()

@@ -164,6 +164,17 @@ pub fn percent(v: f64) -> String {
     }
 }
 
+/// FNV-1a, 64 bits: a stable fingerprint of a text (a scene's, a node's, a
+/// network's), the same on every machine.
+pub fn fnv1a(text: &str) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in text.bytes() {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    format!("{h:016x}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,6 +11,7 @@
 //! - [`validate`]: checks against exact solutions and published experiments;
 //! - [`gradcheck`]: the adjoint's gradients against central differences;
 //! - [`study`]: the studies whose pages are `docs/results/`;
+//! - [`chart`]: the one chart setup of every figure;
 //! - [`stats`]: the statistics every page uses (mean ± sample sd, the paired tests, bootstrap).
 //!
 //! The simulator (`scene`, `sim`, `systems`, `adjoint`, `components`, `materials`, `math`,
@@ -18,6 +19,7 @@
 //! `tests/module_graph_has_no_cycles.rs` checks it.
 
 pub mod calibrate;
+pub mod chart;
 pub mod demo;
 pub mod gradcheck;
 pub mod optim;

@@ -38,6 +38,24 @@ use crate::math::pose::Pose;
 use glam::{DQuat, DVec3};
 
 impl Scene {
+    /// The height of the floor the powder rests on, which an empty pixel of a height map shows: the highest upward-facing plane container, else the domain
+    /// walls' inner face.
+    pub fn floor_height(&self) -> f64 {
+        let walls = self.domain().0.y + self.simulation.walls.cells as f64 * self.simulation.dx;
+        self.colliders
+            .iter()
+            .filter(|c| c.kind == crate::scene::ColliderKindSpec::Container)
+            .filter_map(|c| match c.shape {
+                crate::math::sdf::Shape::Plane { normal }
+                    if DVec3::from(normal).normalize_or_zero().y > 0.999 =>
+                {
+                    Some(c.position.1)
+                }
+                _ => None,
+            })
+            .fold(walls, f64::max)
+    }
+
     /// Rotation of a collider from its Euler angles.
     pub fn collider_rotation(c: &ColliderSpec) -> DQuat {
         let (a, b, g) = c.rotation_deg;

@@ -166,7 +166,7 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
     dataset::spec_of(&scene)?;
     let settings = policy::Settings {
         dataset: dataset::Config {
-            scene_hash: powderlab::lab::optim::fnv1a(&scene.source),
+            scene_hash: powderlab::util::fnv1a(&scene.source),
             scenes: dataset::SCENES,
             budget: 10,
             augment: 2,

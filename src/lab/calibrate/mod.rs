@@ -26,9 +26,7 @@ pub mod params;
 pub mod plot;
 pub mod trust;
 
-pub use curvature::{
-    identifiability, symmetric_eigen, Identifiability, CURVATURE_STEP, PINNED_SHARE,
-};
+pub use curvature::{identifiability, Identifiability, CURVATURE_STEP, PINNED_SHARE};
 pub use fit::{adam, cmaes, measure_backward_cost, AdamConfig, CMA_SIGMA0};
 pub use journal::Journal;
 pub use trust::{trust_region, TrustConfig};
@@ -37,7 +35,6 @@ use crate::adjoint::loss::HeightObservation;
 use crate::adjoint::tape::{gradient_with, Loss, Tape, Term};
 use crate::lab::optim::report::BACKWARD_COST;
 use crate::math::chamfer;
-use crate::math::sdf::Shape;
 use crate::scene::Scene;
 use crate::sim::{SimOptions, Simulation};
 use anyhow::Context;
@@ -96,23 +93,6 @@ pub fn lowest(trace: &[Eval]) -> Option<&Eval> {
     trace.iter().min_by(|a, b| a.loss.total_cmp(&b.loss))
 }
 
-/// The height an empty pixel shows: the highest upward-facing plane container, else the domain
-/// walls' inner face.
-pub fn floor_height(scene: &Scene) -> f64 {
-    let walls = scene.domain().0.y + scene.simulation.walls.cells as f64 * scene.simulation.dx;
-    scene
-        .colliders
-        .iter()
-        .filter(|c| c.kind == crate::scene::ColliderKindSpec::Container)
-        .filter_map(|c| match c.shape {
-            Shape::Plane { normal } if DVec3::from(normal).normalize_or_zero().y > 0.999 => {
-                Some(c.position.1)
-            }
-            _ => None,
-        })
-        .fold(walls, f64::max)
-}
-
 /// The finest particle spacing of the scene's bodies.
 fn spacing(scene: &Scene) -> f64 {
     scene
@@ -157,7 +137,7 @@ pub fn observation_loss(
                 Loss::HeightField(HeightObservation {
                     grid: *grid,
                     observed: heights.clone(),
-                    base: floor_height(scene),
+                    base: scene.floor_height(),
                     top: 0.5 * h,
                     tau: tau.unwrap_or(TAU_PER_SPACING * h),
                     edge: tau.unwrap_or(TAU_PER_SPACING * h) / EDGE_SHARPNESS,
@@ -377,7 +357,7 @@ pub fn observe(
         let h = crate::math::heightfield::hard_heights(
             &grid,
             &xs,
-            floor_height(scene),
+            scene.floor_height(),
             0.5 * spacing(scene),
         );
         let heights = h.into_iter().map(|v| v + noise * rng.normal()).collect();

@@ -1,7 +1,7 @@
 //! The calibration's figures: curves of a quantity against compute (forward-rollout
 //! equivalents), log-scaled in y.
 
-use crate::util::write_atomic;
+use crate::lab::chart;
 use plotters::coord::combinators::IntoLogRange;
 use plotters::prelude::*;
 use std::path::Path;
@@ -50,11 +50,8 @@ pub fn curves_svg(
     if !y0.is_finite() {
         (y0, y1) = (1e-12, 1.0);
     }
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (820, 520)).into_drawing_area();
-        root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(&root)
+    chart::write_svg(path, (820, 520), |root| {
+        let mut chart = ChartBuilder::on(root)
             .caption(title, ("sans-serif", 16))
             .margin(12)
             .x_label_area_size(40)
@@ -79,19 +76,11 @@ pub fn curves_svg(
                 style,
             ))?;
             if labelled.insert(c.label.clone()) {
-                s.label(c.label.clone()).legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], col.stroke_width(2))
-                });
+                s.label(c.label.clone())
+                    .legend(chart::key(col.stroke_width(2)));
             }
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()?;
-        root.present()?;
-    }
-    write_atomic(path, svg.as_bytes())?;
-    Ok(())
+        chart::legend(&mut chart, SeriesLabelPosition::UpperRight, None)?;
+        Ok(())
+    })
 }

@@ -14,8 +14,8 @@
 //! B_iᵀA_i⁻¹g_pi)`, `δp_i = −A_i⁻¹(g_pi + B_i·δs)`.
 
 use super::track::{tau_levels, taus, Damping, View};
-use crate::lab::calibrate::curvature::symmetric_eigen;
 use crate::lab::render::silhouette::{perturbed, reshaped, silhouette};
+use crate::math::eigen::symmetric_eigen;
 use crate::math::pose::Pose;
 use crate::math::sdf::Spoon;
 use glam::DVec3;

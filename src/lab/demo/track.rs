@@ -8,9 +8,9 @@
 //! radius so that the six parameters are all lengths. An optional prior pulls the pose towards
 //! a given one (the previous frame's, for temporal smoothness).
 
-use crate::lab::calibrate::curvature::symmetric_eigen;
 use crate::lab::render::silhouette::{perturbed, silhouette, Silhouette};
 use crate::lab::render::Camera;
+use crate::math::eigen::symmetric_eigen;
 use crate::math::pose::Pose;
 use crate::math::sdf::Spoon;
 use glam::DVec3;

@@ -276,16 +276,6 @@ pub struct Options {
     pub quiet: bool,
 }
 
-/// FNV-1a, 64 bits: a stable fingerprint of the scene text.
-pub fn fnv1a(text: &str) -> String {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in text.bytes() {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    format!("{h:016x}")
-}
-
 /// Θ_init of seed `k`: uniform in [−1, 1]⁵.
 pub fn theta_init(k: usize) -> [f64; 5] {
     let mut rng = SplitMix64(0x7E7A_1A17 + k as u64);

@@ -4,8 +4,8 @@
 use super::journal::Record;
 use super::report::curve;
 use super::Method;
+use crate::lab::chart;
 use crate::lab::stats::mean_sd as mean_std;
-use crate::util::write_atomic;
 use plotters::prelude::*;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -73,11 +73,8 @@ pub fn indicator_svg(
         }
     }
     let pad = 0.05 * (hi - lo).max(1e-9);
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (800, 520)).into_drawing_area();
-        root.fill(&WHITE)?;
-        let mut chart = ChartBuilder::on(&root)
+    chart::write_svg(path, (800, 520), |root| {
+        let mut chart = ChartBuilder::on(root)
             .caption(
                 format!("Indicator (target − transported, {unit}): best rollout so far, mean ± std over seeds"),
                 ("sans-serif", 16),
@@ -104,18 +101,9 @@ pub fn indicator_svg(
                     c.stroke_width(2),
                 ))?
                 .label(m.name())
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-                });
+                .legend(chart::key(c.stroke_width(2)));
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()?;
-        root.present()?;
-    }
-    write_atomic(path, svg.as_bytes())?;
-    Ok(())
+        chart::legend(&mut chart, SeriesLabelPosition::UpperRight, None)?;
+        Ok(())
+    })
 }

@@ -77,5 +77,5 @@ pub fn key(node: &str, action: &[f64]) -> String {
 /// A seed for a node's optimiser from the run's seed and the node's path, so a resumed plan
 /// draws the same samples.
 pub fn node_seed(seed: u64, node: &str) -> u64 {
-    seed ^ u64::from_str_radix(&crate::lab::optim::fnv1a(node), 16).expect("fnv1a gives hex")
+    seed ^ u64::from_str_radix(&crate::util::fnv1a(node), 16).expect("fnv1a gives hex")
 }

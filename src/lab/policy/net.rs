@@ -247,7 +247,7 @@ impl Policy {
         for var in self.vars() {
             push(&var.as_tensor().flatten_all()?.to_vec1::<f64>()?);
         }
-        Ok(crate::lab::optim::fnv1a(&text))
+        Ok(crate::util::fnv1a(&text))
     }
 
     /// Writes the network, its standardisation and its layout (atomically).

@@ -271,10 +271,7 @@ pub fn particle_radius(scene: &crate::scene::Scene) -> f64 {
 /// The floor of a scene: the height the powder rests on, over the domain's x–z extent.
 pub fn floor(scene: &crate::scene::Scene) -> (f64, [f64; 4]) {
     let (lo, hi) = scene.domain();
-    (
-        crate::lab::calibrate::floor_height(scene),
-        [lo.x, lo.z, hi.x, hi.z],
-    )
+    (scene.floor_height(), [lo.x, lo.z, hi.x, hi.z])
 }
 
 /// Renders the simulation's current state from each camera: `(camera name, PNG bytes)`.

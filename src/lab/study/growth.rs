@@ -18,6 +18,7 @@
 //! The first step (one substep's allocations, the warm start of the SVD) is not timed; the next
 //! [`TIMED_STEPS`] are.
 
+use crate::lab::chart;
 use crate::scene::{BodySpec, Fill, Scene};
 use crate::sim::{SimOptions, Simulation};
 use crate::util::{peak_rss_bytes, write_atomic};
@@ -313,10 +314,7 @@ type Quantity = (&'static str, RGBColor, fn(&Point) -> f64);
 /// Two log–log panels: time per substep against the particle count (particle series) and
 /// against the grid nodes (grid series), each with the time per particle-substep beside it.
 fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
-    let mut text = String::new();
-    {
-        let root = SVGBackend::with_string(&mut text, (1100, 480)).into_drawing_area();
-        root.fill(&WHITE)?;
+    chart::write_svg(path, (1100, 480), |root| {
         let root = root.titled(
             "powderlab: time per substep (sand_box variants, 2×2×2 particles per cell)",
             ("sans-serif", 20),
@@ -389,7 +387,7 @@ fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
                         colour.stroke_width(2),
                     ))?
                     .label(label)
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
+                    .legend(chart::key(colour));
                 chart.draw_series(
                     pts.iter()
                         .map(|p| Circle::new((p.0, y(p)), 3, colour.filled())),
@@ -403,24 +401,17 @@ fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
                         grey.stroke_width(2),
                     ))?
                     .label("ms per substep, dense grid sweeps")
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], grey));
+                    .legend(chart::key(grey));
                 chart.draw_series(
                     dense
                         .iter()
                         .map(|p| Circle::new((p.0, p.1), 3, grey.filled())),
                 )?;
             }
-            chart
-                .configure_series_labels()
-                .position(corner)
-                .background_style(WHITE.mix(0.8))
-                .border_style(BLACK)
-                .draw()?;
+            chart::legend(&mut chart, corner, None)?;
         }
-        root.present()?;
-    }
-    write_atomic(path, text.as_bytes())?;
-    Ok(())
+        Ok(())
+    })
 }
 
 #[cfg(test)]

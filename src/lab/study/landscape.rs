@@ -89,7 +89,7 @@ pub fn run(
     use rayon::prelude::*;
     crate::util::create_output_dir(dir, "--out")?;
     // The rollouts kept in `dir` are reused only for the same scene text.
-    let hash = crate::lab::optim::fnv1a(&problem.scene.source);
+    let hash = crate::util::fnv1a(&problem.scene.source);
     let stamp = dir.join("scene.fnv1a");
     match std::fs::read_to_string(&stamp) {
         Ok(old) if old.trim() != hash => anyhow::bail!(

@@ -4,7 +4,7 @@
 //! compute and against rollouts.
 
 use super::{Case, Row, Sweep};
-use crate::util::write_atomic;
+use crate::lab::chart;
 use plotters::coord::combinators::IntoLogRange;
 use plotters::prelude::*;
 use std::path::Path;
@@ -104,10 +104,7 @@ fn short(r: &Row) -> String {
 /// Draws the figure and writes it atomically. Errors of exactly zero (a quantity identical to
 /// its reference) have no place on a log axis and are left out; the CSV has them.
 pub fn error_vs_time_svg(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1100, 1560)).into_drawing_area();
-        root.fill(&WHITE)?;
+    chart::write_svg(path, (1100, 1560), |root| {
         let root = root.titled(
             "powderlab: error against run time (2 threads; Pareto front in black)",
             ("sans-serif", 20),
@@ -201,25 +198,17 @@ pub fn error_vs_time_svg(path: &Path, rows: &[Row]) -> anyhow::Result<()> {
                         BLACK.stroke_width(1),
                     ))?
                     .label("Pareto front")
-                    .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK));
+                    .legend(chart::key(BLACK));
                 chart.draw_series(
                     front
                         .iter()
                         .map(|&(t, e)| Circle::new((t, e), 7, BLACK.stroke_width(1))),
                 )?;
             }
-            chart
-                .configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .label_font(("sans-serif", 11))
-                .position(legend_at)
-                .draw()?;
+            chart::legend(&mut chart, legend_at, Some(("sans-serif", 11)))?;
         }
-        root.present()?;
-    }
-    write_atomic(path, svg.as_bytes())?;
-    Ok(())
+        Ok(())
+    })
 }
 
 /// The corner of a log–log panel whose third (in each axis) holds the fewest points, for the
@@ -266,11 +255,7 @@ pub struct Curves {
 /// (left) and against rollouts (right), log scale.
 pub fn optimisation_figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::Result<()> {
     use crate::lab::optim::plot::colour;
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1100, 380 * tasks.len().max(1) as u32))
-            .into_drawing_area();
-        root.fill(&WHITE)?;
+    chart::write_svg(path, (1100, 380 * tasks.len().max(1) as u32), |root| {
         let rows = root.split_evenly((tasks.len().max(1), 2));
         for (i, t) in tasks.iter().enumerate() {
             for (j, (curves, xdesc)) in [
@@ -318,22 +303,13 @@ pub fn optimisation_figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::
                             c.stroke_width(2),
                         ))?
                         .label(m.name())
-                        .legend(move |(x, y)| {
-                            PathElement::new(vec![(x, y), (x + 18, y)], c.stroke_width(2))
-                        });
+                        .legend(chart::key(c.stroke_width(2)));
                 }
-                chart
-                    .configure_series_labels()
-                    .background_style(WHITE.mix(0.85))
-                    .border_style(BLACK)
-                    .position(SeriesLabelPosition::UpperRight)
-                    .draw()?;
+                chart::legend(&mut chart, SeriesLabelPosition::UpperRight, None)?;
             }
         }
-        root.present()?;
-    }
-    crate::util::write_atomic(path, svg.as_bytes())?;
-    Ok(())
+        Ok(())
+    })
 }
 
 #[cfg(test)]

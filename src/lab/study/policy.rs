@@ -6,6 +6,7 @@
 //! policies and the warm start on the held-out scenes. Every step keeps what it computed under `dir`, so a killed
 //! study resumes; the fit is deterministic and seconds long, so it is simply redone.
 
+use crate::lab::chart;
 use crate::lab::policy::dataset::{self, Sample};
 use crate::lab::policy::eval::{self, Candidate, EvalConfig, SceneEval};
 use crate::lab::policy::net::{self, Policy, TrainConfig, TrainPoint};
@@ -334,10 +335,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
 /// The training curve (train and validation MSE against epoch) and the fine-tune's mean reward
 /// per iteration, side by side.
 pub fn figure(path: &Path, curve: &[TrainPoint], its: &[Iteration]) -> anyhow::Result<()> {
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1100, 420)).into_drawing_area();
-        root.fill(&WHITE)?;
+    chart::write_svg(path, (1100, 420), |root| {
         let (l, r) = root.split_horizontally(550);
         let ys: Vec<f64> = curve
             .iter()
@@ -379,14 +377,9 @@ pub fn figure(path: &Path, curve: &[TrainPoint], its: &[Iteration]) -> anyhow::R
                 colour.stroke_width(2),
             ))?
             .label(name)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
-            });
+            .legend(chart::key(colour.stroke_width(2)));
         }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
+        chart::legend(&mut c, SeriesLabelPosition::MiddleRight, None)?;
         let pts: Vec<(f64, f64)> = its
             .iter()
             .map(|i| (i.iteration as f64 + 1.0, i.mean_reward))
@@ -417,7 +410,6 @@ pub fn figure(path: &Path, curve: &[TrainPoint], its: &[Iteration]) -> anyhow::R
             })
         }))?;
         c.draw_series(LineSeries::new(pts, BLACK.stroke_width(2)))?;
-    }
-    crate::util::write_atomic(path, svg.as_bytes())?;
-    Ok(())
+        Ok(())
+    })
 }

@@ -11,6 +11,7 @@
 //! The open-loop reference is the distilled policy of `study policy` on the same draws at dx = 5
 //! mm, read from `dir/../policy/eval` when that study has run in the same `--out`.
 
+use crate::lab::chart;
 use crate::lab::policy::dataset::{self, draw_scene, problem_of, spec_of};
 use crate::lab::policy::eval::{Trial, HELD_OUT_STREAM};
 use crate::lab::policy::pour::{self, Gravimetric};
@@ -84,7 +85,7 @@ pub fn run(
     let stamp = serde_json::json!({
         "pour": g,
         "seed": seed,
-        "scene_hash": crate::lab::optim::fnv1a(&base.source),
+        "scene_hash": crate::util::fnv1a(&base.source),
     });
     crate::lab::policy::file::stamped(&dir.join("pour-config.json"), &stamp, "pours", "--out")?;
     let done = std::sync::atomic::AtomicUsize::new(0);
@@ -350,10 +351,7 @@ pub fn shown<'a>(coarse: &'a [Row], fine: &'a [Row]) -> Option<(&'a Row, &'a Row
 /// pour.svg: the mass that has left the spoon against its tilt, per pour step, for one draw at
 /// each resolution ([`shown`]), with the dose.
 pub fn figure(path: &Path, coarse: Option<&Row>, fine: Option<&Row>) -> anyhow::Result<()> {
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (700, 420)).into_drawing_area();
-        root.fill(&WHITE)?;
+    chart::write_svg(path, (700, 420), |root| {
         let rows: Vec<&Row> = [coarse, fine].into_iter().flatten().collect();
         let ymax = rows
             .iter()
@@ -364,7 +362,7 @@ pub fn figure(path: &Path, coarse: Option<&Row>, fine: Option<&Row>) -> anyhow::
             .iter()
             .flat_map(|r| r.trace.iter().map(|p| p.0))
             .fold(1.0f64, f64::max);
-        let mut c = ChartBuilder::on(&root)
+        let mut c = ChartBuilder::on(root)
             .caption(
                 format!(
                     "gravimetric pour, draw {}",
@@ -388,9 +386,7 @@ pub fn figure(path: &Path, coarse: Option<&Row>, fine: Option<&Row>) -> anyhow::
                 colour.stroke_width(2),
             ))?
             .label(name)
-            .legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
-            });
+            .legend(chart::key(colour.stroke_width(2)));
         }
         if let Some(r) = coarse.or(fine) {
             c.draw_series(LineSeries::new(
@@ -398,15 +394,9 @@ pub fn figure(path: &Path, coarse: Option<&Row>, fine: Option<&Row>) -> anyhow::
                 BLACK.stroke_width(1),
             ))?
             .label("the dose")
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK));
+            .legend(chart::key(BLACK));
         }
-        c.configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .position(SeriesLabelPosition::UpperLeft)
-            .draw()?;
-        root.present()?;
-    }
-    crate::util::write_atomic(path, svg.as_bytes())?;
-    Ok(())
+        chart::legend(&mut c, SeriesLabelPosition::UpperLeft, None)?;
+        Ok(())
+    })
 }

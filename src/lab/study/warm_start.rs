@@ -62,7 +62,7 @@ fn race(
     init: Option<[f64; 5]>,
 ) -> anyhow::Result<Vec<f64>> {
     let settings = optim::Settings {
-        scene_hash: optim::fnv1a(&scene.source),
+        scene_hash: crate::util::fnv1a(&scene.source),
         methods: vec![Method::Cmaes],
         epochs: BUDGET,
         seeds: SEEDS,
@@ -137,7 +137,7 @@ pub fn run(scene: &Scene, dir: &Path, setup: &Setup) -> anyhow::Result<WarmStart
     let demo_error = dose_error(&problem, row.fitted)?;
     // 3. The race.
     // A Θ_demo of its own folder: a rerun that fits Θ otherwise races afresh.
-    let tag = optim::fnv1a(&format!("{:?}", row.fitted));
+    let tag = crate::util::fnv1a(&format!("{:?}", row.fitted));
     let from_demo = race(
         &problem,
         scene,
