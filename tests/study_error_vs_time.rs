@@ -143,7 +143,8 @@ fn study_refuses_bad_input_with_a_clear_message() {
     let o = powderlab().args(["study", "nonsense"]).output().unwrap();
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("unknown study 'nonsense'"), "{err}");
+    assert!(err.contains("unrecognized subcommand 'nonsense'"), "{err}");
+    assert_eq!(o.status.code(), Some(2), "{err}");
 
     let o = powderlab()
         .args([

@@ -204,7 +204,7 @@ pub fn run(args: Args) -> Result<()> {
     let out =
         out.unwrap_or_else(|| PathBuf::from("runs").join(scene.file_stem().unwrap_or_default()));
     let settings = optim::Settings {
-        scene_hash: powderlab::util::fnv1a(&sc.source),
+        scene_hash: sc.fingerprint(),
         methods,
         epochs,
         seeds,

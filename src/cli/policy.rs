@@ -150,7 +150,7 @@ pub fn run(a: Args) -> Result<()> {
 /// The settings of a dataset of `scene`.
 fn dataset_config(scene: &Scene, d: &DatasetArgs) -> Config {
     Config {
-        scene_hash: powderlab::util::fnv1a(&scene.source),
+        scene_hash: scene.fingerprint(),
         scenes: d.scenes,
         budget: d.budget,
         augment: d.augment,

@@ -11,6 +11,7 @@
 //! - [`validate`]: checks against exact solutions and published experiments;
 //! - [`gradcheck`]: the adjoint's gradients against central differences;
 //! - [`study`]: the studies whose pages are `docs/results/`;
+//! - [`journal`]: the one append-and-replay store of every resumable command;
 //! - [`chart`]: the one chart setup of every figure;
 //! - [`stats`]: the statistics every page uses (mean ± sample sd, the paired tests, bootstrap).
 //!
@@ -22,6 +23,7 @@ pub mod calibrate;
 pub mod chart;
 pub mod demo;
 pub mod gradcheck;
+pub mod journal;
 pub mod optim;
 pub mod plan;
 pub mod policy;

@@ -38,13 +38,20 @@ use crate::math::pose::Pose;
 use glam::{DQuat, DVec3};
 
 impl Scene {
+    /// A fingerprint of what fixes the scene's results: FNV-1a of its every field written as RON
+    /// (defaults written out), so that a comment, a blank line or a default spelled out leaves
+    /// it unchanged, and any change of a value changes it. Journals are keyed by it.
+    pub fn fingerprint(&self) -> String {
+        crate::util::fnv1a(&ron::to_string(self).expect("a parsed scene writes as RON"))
+    }
+
     /// The height of the floor the powder rests on, which an empty pixel of a height map shows: the highest upward-facing plane container, else the domain
     /// walls' inner face.
     pub fn floor_height(&self) -> f64 {
         let walls = self.domain().0.y + self.simulation.walls.cells as f64 * self.simulation.dx;
         self.colliders
             .iter()
-            .filter(|c| c.kind == crate::scene::ColliderKindSpec::Container)
+            .filter(|c| c.kind == ColliderKindSpec::Container)
             .filter_map(|c| match c.shape {
                 crate::math::sdf::Shape::Plane { normal }
                     if DVec3::from(normal).normalize_or_zero().y > 0.999 =>

@@ -2,6 +2,7 @@
 //! Each configuration runs in a child process (this executable with `--config`), so that its
 //! peak memory is its own.
 
+mod args;
 mod optimisation;
 mod tasks;
 
@@ -11,78 +12,12 @@ use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// Accuracy and cost. `error-vs-time` sweeps the grid resolution, the particles per cell
-/// and the substeps on the column collapse and the transport task, and writes
-/// results.json, error_vs_time.csv, error_vs_time.md and error_vs_time.svg to --out;
-/// `growth` times a substep of `sand_box` variants against the particle count and the grid
-/// and writes growth.json, growth.csv and growth.svg.
+/// The studies behind `docs/results/`, one subcommand each with its own arguments
+/// (`powderlab study NAME --help`).
 #[derive(clap::Args)]
 pub struct Args {
-    /// The study to run: error-vs-time, or growth (time per substep against particles and grid).
-    study: String,
-    /// Output folder.
-    #[arg(long, default_value = "study")]
-    out: PathBuf,
-    /// The transport task's scene (error-vs-time; default scenes/powder_transport.ron).
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    /// A seconds-long version of the study (tests and CI).
-    #[arg(long)]
-    quick: bool,
-    /// landscape: quasi-random rollouts to run (default 256; 16 with --quick).
-    #[arg(long)]
-    samples: Option<usize>,
-    /// optimizers: the skill scenes to benchmark (comma separated; default the transport task
-    /// and the precise-dosing task). planning: the plan scenes (default
-    /// scenes/multi_scoop_dosing.ron and scenes/plate_push.ron).
-    #[arg(long, value_delimiter = ',')]
-    tasks: Vec<PathBuf>,
-    /// optimizers: paired seeds per task.
-    #[arg(long, default_value_t = 10)]
-    seeds: usize,
-    /// optimizers: compute per seed and method, in forward rollouts.
-    #[arg(long, default_value_t = 20)]
-    budget: usize,
-    /// optimizers: the methods (comma separated, or all).
-    #[arg(long, value_delimiter = ',', default_value = "all")]
-    method: Vec<String>,
-    /// refine: knots per control channel of each dimension tried (6 parameters per knot).
-    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 5, 16])]
-    knots: Vec<usize>,
-    /// refine: start each seed from a Sobol point whose plain skill delivers at least this much
-    /// more than the target (the target's unit), instead of Θ_init(k).
-    #[arg(long)]
-    over: Option<f64>,
-    /// optimizers, refine, directions: where the page goes.
-    #[arg(long, default_value = "docs/results")]
-    results: PathBuf,
-    /// optimizers: the page's name: NAME.md, NAME.svg and NAME.csv in --results.
-    #[arg(long, default_value = "optimisation")]
-    page: String,
-    /// reliability: mutated scenes to run through `simulate`.
-    #[arg(long, default_value_t = 10_000)]
-    cases: usize,
-    /// reliability: address-space cap per process, in GB.
-    #[arg(long, default_value_t = 8.0)]
-    cap_gb: f64,
-    /// reliability: wall-clock limit per process, in seconds.
-    #[arg(long, default_value_t = 20.0)]
-    timeout_s: f64,
-    /// reliability: processes side by side.
-    #[arg(long, default_value_t = 2)]
-    jobs: usize,
-    /// Keep the configurations already finished in OUT/results.json.
-    #[arg(long)]
-    resume: bool,
-    #[arg(long, value_parser = super::threads_arg)]
-    threads: Option<usize>,
-    /// Print one JSON object.
-    #[arg(long)]
-    json: bool,
-    /// Run one configuration (JSON) and print its result: the study runs each
-    /// configuration in a process of its own, so that its peak memory is its own.
-    #[arg(long, hide = true)]
-    config: Option<String>,
+    #[command(subcommand)]
+    study: args::Study,
 }
 
 /// Runs one configuration of `study` in a child process (this executable with `--config`), so
@@ -116,47 +51,28 @@ fn study_child(exe: &std::path::Path, cfg: &study::Config) -> study::ConfigResul
     run_in_child(exe, "error-vs-time", cfg).unwrap_or_else(|e| study::failed(cfg, format!("{e:#}")))
 }
 
-/// Runs the command.
+/// Runs the command: the study the table names.
 pub fn run(a: Args) -> Result<()> {
-    if a.study == "growth" {
-        return growth_cmd(a);
+    use args::Study;
+    match a.study {
+        Study::ErrorVsTime(a) => error_vs_time_cmd(a),
+        Study::Growth(a) => growth_cmd(a),
+        Study::Landscape(a) => optimisation::landscape_cmd(a),
+        Study::Optimizers(a) => optimisation::optimizers_cmd(a),
+        Study::Directions(a) => optimisation::directions_cmd(a),
+        Study::Refine(a) => optimisation::refine_cmd(a),
+        Study::Calibration(a) => tasks::calibration_cmd(a),
+        Study::Demonstration(a) => tasks::demonstration_cmd(a),
+        Study::Planning(a) => tasks::planning_cmd(a),
+        Study::Policy(a) => tasks::policy_cmd(a),
+        Study::Pour(a) => tasks::pour_cmd(a),
+        Study::Reliability(a) => tasks::reliability_cmd(a),
     }
-    if a.study == "landscape" {
-        return optimisation::landscape_cmd(a);
-    }
-    if a.study == "optimizers" {
-        return optimisation::optimizers_cmd(a);
-    }
-    if a.study == "directions" {
-        return optimisation::directions_cmd(a);
-    }
-    if a.study == "refine" {
-        return optimisation::refine_cmd(a);
-    }
-    if a.study == "calibration" {
-        return tasks::calibration_cmd(a);
-    }
-    if a.study == "demonstration" {
-        return tasks::demonstration_cmd(a);
-    }
-    if a.study == "planning" {
-        return tasks::planning_cmd(a);
-    }
-    if a.study == "policy" {
-        return tasks::policy_cmd(a);
-    }
-    if a.study == "pour" {
-        return tasks::pour_cmd(a);
-    }
-    if a.study == "reliability" {
-        return tasks::reliability_cmd(a);
-    }
-    if a.study != "error-vs-time" {
-        bail!(
-            "unknown study '{}': expected error-vs-time, growth, landscape, optimizers, directions, refine, calibration, demonstration, planning, policy, pour or reliability",
-            a.study
-        );
-    }
+}
+
+/// `powderlab study error-vs-time` (`powderlab::lab::study`): each configuration in a child
+/// process.
+fn error_vs_time_cmd(a: args::ErrorVsTime) -> Result<()> {
     if let Some(c) = &a.config {
         let cfg: study::Config = serde_json::from_str(c).context("--config")?;
         let r = study::run_config(&cfg)?;
@@ -176,11 +92,11 @@ pub fn run(a: Args) -> Result<()> {
         )?;
     }
     let exe = std::env::current_exe().context("cannot find this executable")?;
-    let pb = super::bar(plan.len() as u64, a.json);
+    let pb = super::bar(plan.len() as u64, a.common.json);
     let start = Instant::now();
     let (results, rows) = study::run_study(
         &plan,
-        &a.out,
+        &a.common.out,
         a.resume,
         |cfg| study_child(&exe, cfg),
         |i, cfg| {
@@ -197,8 +113,8 @@ pub fn run(a: Args) -> Result<()> {
                 .map(|f| json!({ "config": r.config.label(), "error": f }))
         })
         .collect();
-    let outputs = study::Outputs::in_dir(&a.out);
-    if a.json {
+    let outputs = study::Outputs::in_dir(&a.common.out);
+    if a.common.json {
         println!(
             "{}",
             json!({
@@ -232,19 +148,8 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// `powderlab study growth` (`powderlab::lab::study::growth`): each configuration in a child process.
-fn growth_cmd(a: Args) -> Result<()> {
+fn growth_cmd(a: args::Growth) -> Result<()> {
     use powderlab::lab::study::growth;
-    if let Some(s) = &a.scene {
-        bail!(
-            "study growth: --scene {} is not used: the growth study runs its own variants of scenes/sand_box.ron (the Taichi reference's scene); leave --scene out",
-            s.display()
-        );
-    }
-    if a.resume {
-        bail!(
-            "study growth: --resume is not supported: the study reruns every configuration (about 3 minutes); leave --resume out"
-        );
-    }
     let scene = PathBuf::from("scenes/sand_box.ron");
     let base = powderlab::scene::Scene::load(&scene)?;
     if let Some(c) = &a.config {
@@ -260,9 +165,9 @@ fn growth_cmd(a: Args) -> Result<()> {
         growth::growth_scene(&base, cfg)?;
     }
     let exe = std::env::current_exe().context("cannot find this executable")?;
-    powderlab::util::create_output_dir(&a.out, "--out")?;
-    let outputs = growth::GrowthOutputs::in_dir(&a.out);
-    let pb = super::bar(plan.len() as u64, a.json);
+    powderlab::util::create_output_dir(&a.common.out, "--out")?;
+    let outputs = growth::GrowthOutputs::in_dir(&a.common.out);
+    let pb = super::bar(plan.len() as u64, a.common.json);
     let start = Instant::now();
     let mut results = Vec::new();
     for cfg in &plan {
@@ -281,7 +186,7 @@ fn growth_cmd(a: Args) -> Result<()> {
         growth::grid_series_growth(&results, growth::Series::Grid),
         growth::grid_series_growth(&results, growth::Series::GridDense),
     );
-    if a.json {
+    if a.common.json {
         println!(
             "{}",
             json!({
@@ -332,14 +237,15 @@ fn growth_cmd(a: Args) -> Result<()> {
 /// The skill problem of `--scene` (else `default`), its indicator's unit, and the worker pool
 /// of `--threads` (default all cores) started.
 pub(super) fn skill_problem(
-    a: &Args,
+    scene: &Option<PathBuf>,
+    threads: Option<usize>,
     default: &str,
 ) -> Result<(
     PathBuf,
     powderlab::lab::optim::problem::Problem,
     &'static str,
 )> {
-    let scene = a.scene.clone().unwrap_or_else(|| PathBuf::from(default));
+    let scene = scene.clone().unwrap_or_else(|| PathBuf::from(default));
     let sc = powderlab::scene::Scene::load(&scene)?;
     let problem = powderlab::lab::optim::problem::Problem::new(sc, 1 << 30)?;
     let unit = match problem.target {
@@ -347,7 +253,7 @@ pub(super) fn skill_problem(
         powderlab::scene::TargetValue::Grams(_) => "g",
     };
     rayon::ThreadPoolBuilder::new()
-        .num_threads(a.threads.unwrap_or(0))
+        .num_threads(threads.unwrap_or(0))
         .build_global()
         .context("starting the worker threads")?;
     Ok((scene, problem, unit))
@@ -356,14 +262,15 @@ pub(super) fn skill_problem(
 /// Prints a study's page (or, with `--json`, one object: its wall time, `extra`'s fields and
 /// the page) and says what was written where.
 pub(super) fn print_page(
-    a: &Args,
+    json: bool,
+    results: &std::path::Path,
     md: &str,
     start: Instant,
     wrote: &str,
     extra: serde_json::Value,
 ) {
     let wall_s = start.elapsed().as_secs_f64();
-    if a.json {
+    if json {
         let mut o = json!({ "wall_s": wall_s, "markdown": md });
         if let (Some(o), Some(e)) = (o.as_object_mut(), extra.as_object()) {
             o.extend(e.clone());
@@ -371,6 +278,6 @@ pub(super) fn print_page(
         println!("{o}");
     } else {
         print!("{md}");
-        eprintln!("{wall_s:.0} s; wrote {wrote} to {}", a.results.display());
+        eprintln!("{wall_s:.0} s; wrote {wrote} to {}", results.display());
     }
 }

@@ -1,7 +1,7 @@
 //! The optimisation studies of `powderlab study`: the loss landscape, the optimiser benchmark,
 //! the gradient directions and trajectory refinement.
 
-use super::{print_page, skill_problem, Args};
+use super::{args, print_page, skill_problem};
 use anyhow::{bail, Context, Result};
 use powderlab::lab::study;
 use serde_json::json;
@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 /// `powderlab study landscape`: Sobol rollouts of a skill scene, best-of-k, main effects.
-pub(super) fn landscape_cmd(a: Args) -> Result<()> {
+pub(super) fn landscape_cmd(a: args::Landscape) -> Result<()> {
     use powderlab::lab::study::landscape;
     let scene = a
         .scene
@@ -32,13 +32,13 @@ pub(super) fn landscape_cmd(a: Args) -> Result<()> {
         .context("starting the worker threads")?;
     super::super::announce_work(&scene, n as f64)?;
     let thetas = landscape::sobol_thetas(n, 0);
-    let pb = super::super::bar(n as u64, a.json);
-    pb.set_position(landscape::load(&a.out)?.len().min(n) as u64);
+    let pb = super::super::bar(n as u64, a.common.json);
+    pb.set_position(landscape::load(&a.common.out)?.len().min(n) as u64);
     let start = Instant::now();
-    let points = landscape::run(&problem, &thetas, &a.out, &|| pb.inc(1))?;
+    let points = landscape::run(&problem, &thetas, &a.common.out, &|| pb.inc(1))?;
     pb.finish_and_clear();
-    let md = landscape::write_report(&points, unit, &a.out)?;
-    if a.json {
+    let md = landscape::write_report(&points, unit, &a.common.out)?;
+    if a.common.json {
         println!(
             "{}",
             json!({ "rollouts": points.len(), "wall_s": start.elapsed().as_secs_f64(), "markdown": md })
@@ -49,14 +49,14 @@ pub(super) fn landscape_cmd(a: Args) -> Result<()> {
             "{} rollouts in {:.0} s; wrote landscape.csv and landscape.md to {}",
             points.len(),
             start.elapsed().as_secs_f64(),
-            a.out.display()
+            a.common.out.display()
         );
     }
     Ok(())
 }
 
 /// `powderlab study optimizers`: every method on paired seeds at equal compute.
-pub(super) fn optimizers_cmd(a: Args) -> Result<()> {
+pub(super) fn optimizers_cmd(a: args::Optimizers) -> Result<()> {
     use powderlab::lab::optim::Method;
     let tasks = if a.tasks.is_empty() {
         vec![
@@ -84,10 +84,10 @@ pub(super) fn optimizers_cmd(a: Args) -> Result<()> {
         .num_threads(threads)
         .build_global()
         .context("starting the worker threads")?;
-    if a.page.is_empty() || a.page.contains(['/', '\\', '.']) {
+    if a.name.is_empty() || a.name.contains(['/', '\\', '.']) {
         bail!(
             "--page {:?}: expected a file name without a folder or extension, such as optimisation",
-            a.page
+            a.name
         );
     }
     let mut command = format!(
@@ -105,8 +105,8 @@ pub(super) fn optimizers_cmd(a: Args) -> Result<()> {
             .collect::<Vec<_>>()
             .join(",")
     );
-    if a.page != "optimisation" {
-        command.push_str(&format!(" --page {}", a.page));
+    if a.name != "optimisation" {
+        command.push_str(&format!(" --page {}", a.name));
     }
     for t in &tasks {
         super::super::announce_work(t, (a.seeds * a.budget * methods.len()) as f64)?;
@@ -117,27 +117,28 @@ pub(super) fn optimizers_cmd(a: Args) -> Result<()> {
         seeds: a.seeds,
         budget: a.budget,
         methods,
-        out: a.out.join("optimizers"),
-        results: a.results.clone(),
-        page: a.page.clone(),
+        out: a.common.out.join("optimizers"),
+        results: a.page.results.clone(),
+        page: a.name.clone(),
         command,
-        quiet: a.json,
+        quiet: a.common.json,
     })?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
-        &format!("{p}.md, {p}.svg and {p}.csv", p = a.page),
+        &format!("{p}.md, {p}.svg and {p}.csv", p = a.name),
         json!({}),
     );
     Ok(())
 }
 
 /// `powderlab study directions`: each loss's gradient against the dose error's secants.
-pub(super) fn directions_cmd(a: Args) -> Result<()> {
+pub(super) fn directions_cmd(a: args::Directions) -> Result<()> {
     use powderlab::lab::study::directions;
-    let (scene, problem, unit) = skill_problem(&a, "scenes/powder_transport.ron")?;
-    let landscape = a.results.join("landscape.csv");
+    let (scene, problem, unit) = skill_problem(&a.scene, a.threads, "scenes/powder_transport.ron")?;
+    let landscape = a.page.results.join("landscape.csv");
     let mut points = directions::default_points(Some(&landscape));
     let steps: Vec<f64> = if a.quick {
         points.truncate(2);
@@ -148,8 +149,8 @@ pub(super) fn directions_cmd(a: Args) -> Result<()> {
     let (labels, thetas): (Vec<String>, Vec<[f64; 5]>) = points.into_iter().unzip();
     // Three gradient rollouts, one at Θ and two per parameter and step.
     let n = thetas.len() * (4 + 10 * steps.len());
-    let pb = super::super::bar(n as u64, a.json);
-    let dir = a.out.join("directions");
+    let pb = super::super::bar(n as u64, a.common.json);
+    let dir = a.common.out.join("directions");
     let start = Instant::now();
     let done = directions::run(&problem, &thetas, &steps, &dir, &|| pb.inc(1))?;
     pb.finish_and_clear();
@@ -160,9 +161,10 @@ pub(super) fn directions_cmd(a: Args) -> Result<()> {
         if a.quick { " --quick" } else { "" }
     );
     let md = directions::report(&rows, &steps, &command, unit);
-    directions::write(&rows, &md, &a.results)?;
+    directions::write(&rows, &md, &a.page.results)?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
         "directions.md and directions.csv",
@@ -173,18 +175,18 @@ pub(super) fn directions_cmd(a: Args) -> Result<()> {
 
 /// `powderlab study refine`: trajectory refinement by dimension, the adjoint against CMA-ES
 /// and random search at equal compute.
-pub(super) fn refine_cmd(a: Args) -> Result<()> {
+pub(super) fn refine_cmd(a: args::Refine) -> Result<()> {
     use powderlab::lab::study::refine;
     if a.knots.is_empty() || a.knots.contains(&0) || a.seeds == 0 || a.budget == 0 {
         bail!("study refine: --knots, --seeds and --budget must be at least 1");
     }
-    let (scene, problem, unit) = skill_problem(&a, "scenes/precise_dosing.ron")?;
+    let (scene, problem, unit) = skill_problem(&a.scene, a.threads, "scenes/precise_dosing.ron")?;
     // At most: trust's rollouts depend on its accepted steps, and never pass the budget.
     let per_seed = 5 * a.budget + refine::gradient_rollouts(a.budget);
     super::super::announce_work(&scene, (a.knots.len() * a.seeds * 6 * a.budget) as f64)?;
-    let pb = super::super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.json);
+    let pb = super::super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.common.json);
     let pb2 = pb.clone();
-    let store = refine::Store::open(&a.out.join("refine"), Box::new(move || pb2.inc(1)))?;
+    let store = refine::Store::open(&a.common.out.join("refine"), Box::new(move || pb2.inc(1)))?;
     let start = Instant::now();
     if a.over.is_some_and(|g| !(g.is_finite() && g >= 0.0)) {
         bail!("study refine: --over must be a finite amount of at least 0 (the target's unit)");
@@ -207,10 +209,11 @@ pub(super) fn refine_cmd(a: Args) -> Result<()> {
         a.budget
     );
     let md = refine::report(&cells, &command, unit, a.budget, screen);
-    powderlab::util::create_output_dir(&a.results, "--results")?;
-    powderlab::util::write_atomic(&a.results.join("refinement.md"), md.as_bytes())?;
+    powderlab::util::create_output_dir(&a.page.results, "--results")?;
+    powderlab::util::write_atomic(&a.page.results.join("refinement.md"), md.as_bytes())?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
         "refinement.md",

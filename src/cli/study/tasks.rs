@@ -1,7 +1,7 @@
 //! The task studies of `powderlab study`: demonstrations, planning, the policy, the pour,
 //! calibration and the reliability of scene loading.
 
-use super::{print_page, Args};
+use super::{args, print_page};
 use anyhow::{bail, Context, Result};
 use serde_json::json;
 use std::path::PathBuf;
@@ -9,7 +9,7 @@ use std::time::Instant;
 
 /// `powderlab study demonstration`: five synthetic demonstrations filmed and fitted back, and
 /// an expert's demonstration as the warm start of an optimisation.
-pub(super) fn demonstration_cmd(a: Args) -> Result<()> {
+pub(super) fn demonstration_cmd(a: args::Demonstration) -> Result<()> {
     use powderlab::lab::study::demonstration::{self, Setup};
     let scene_path = "scenes/powder_transport.ron";
     let scene = powderlab::scene::Scene::load(scene_path)?;
@@ -18,21 +18,24 @@ pub(super) fn demonstration_cmd(a: Args) -> Result<()> {
         every: 4,
         noise: 0.02,
     };
-    let pb = super::super::bar(demonstration::THETAS.len() as u64, a.json);
+    let pb = super::super::bar(demonstration::THETAS.len() as u64, a.common.json);
     let pb2 = pb.clone();
     let start = Instant::now();
-    let rows = demonstration::run(&scene, &a.out.join("demonstration"), &setup, &move |k| {
-        pb2.set_position(k as u64)
-    })?;
+    let rows = demonstration::run(
+        &scene,
+        &a.common.out.join("demonstration"),
+        &setup,
+        &move |k| pb2.set_position(k as u64),
+    )?;
     pb.finish_and_clear();
-    if !a.json {
+    if !a.common.json {
         eprintln!(
             "the warm start: an expert's demonstration, then CMA-ES from it and from random starts"
         );
     }
     let warm = powderlab::lab::study::warm_start::run(
         &scene,
-        &a.out.join("demonstration/warm_start"),
+        &a.common.out.join("demonstration/warm_start"),
         &setup,
     )?;
     let machine = powderlab::lab::study::optimizers::machine();
@@ -43,10 +46,11 @@ pub(super) fn demonstration_cmd(a: Args) -> Result<()> {
         "powderlab study demonstration",
         &machine,
     ) + &powderlab::lab::study::warm_start::report(&warm);
-    powderlab::util::create_output_dir(&a.results, "--results")?;
-    powderlab::util::write_atomic(&a.results.join("demonstration.md"), md.as_bytes())?;
+    powderlab::util::create_output_dir(&a.page.results, "--results")?;
+    powderlab::util::write_atomic(&a.page.results.join("demonstration.md"), md.as_bytes())?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
         "demonstration.md",
@@ -58,7 +62,7 @@ pub(super) fn demonstration_cmd(a: Args) -> Result<()> {
 /// `powderlab study planning`: multi-scoop dosing and the four push/pull classes over
 /// randomised instances, A* against greedy and scripted (`--seeds` instances of each, 10 by
 /// default).
-pub(super) fn planning_cmd(a: Args) -> Result<()> {
+pub(super) fn planning_cmd(a: args::Planning) -> Result<()> {
     use powderlab::lab::plan::dosing::Method;
     use powderlab::lab::study::planning;
     // The two tasks' scenes, or those `--tasks` names (a push plan or a dosing plan each).
@@ -99,14 +103,14 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
     });
     let pb = super::super::bar(
         ((instances.len() + pushes.len()) * methods.len()) as u64,
-        a.json,
+        a.common.json,
     );
     let pb2 = pb.clone();
     let start = Instant::now();
     let rows = match &dosing {
         Some(scene) => planning::run(
             scene,
-            &a.out.join("planning"),
+            &a.common.out.join("planning"),
             &instances,
             &methods,
             &|k, m| {
@@ -119,7 +123,7 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
     let push_rows = match &push {
         Some(scene) => powderlab::lab::study::push::run_push(
             scene,
-            &a.out.join("planning/push"),
+            &a.common.out.join("planning/push"),
             &pushes,
             &methods,
             &|k, m| {
@@ -133,17 +137,18 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
     let command = format!(
         "powderlab study planning --seeds {} --out {}",
         a.seeds,
-        a.out.display()
+        a.common.out.display()
     );
     let md = planning::report(
         &rows,
         &command,
         &powderlab::lab::study::optimizers::machine(),
     ) + &powderlab::lab::study::push::push_report(&push_rows);
-    powderlab::util::create_output_dir(&a.results, "--results")?;
-    powderlab::util::write_atomic(&a.results.join("planning.md"), md.as_bytes())?;
+    powderlab::util::create_output_dir(&a.page.results, "--results")?;
+    powderlab::util::write_atomic(&a.page.results.join("planning.md"), md.as_bytes())?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
         "planning.md",
@@ -155,7 +160,7 @@ pub(super) fn planning_cmd(a: Args) -> Result<()> {
 /// `powderlab study policy`: seed B's Sim2Real step on the randomised dosing scene (160
 /// labelled scenes with 2 perturbed copies each and their hindsight samples, the fit, the
 /// fine-tune, 20 held-out scenes).
-pub(super) fn policy_cmd(a: Args) -> Result<()> {
+pub(super) fn policy_cmd(a: args::Policy) -> Result<()> {
     use powderlab::lab::policy::{dataset, eval, net, reinforce};
     use powderlab::lab::study::policy;
     let path = a
@@ -166,7 +171,7 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
     dataset::spec_of(&scene)?;
     let settings = policy::Settings {
         dataset: dataset::Config {
-            scene_hash: powderlab::util::fnv1a(&scene.source),
+            scene_hash: scene.fingerprint(),
             scenes: dataset::SCENES,
             budget: 10,
             augment: 2,
@@ -182,16 +187,16 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
             seed: 0,
         },
     };
-    let pb = super::super::bar(1, a.json);
+    let pb = super::super::bar(1, a.common.json);
     let start = Instant::now();
-    let dir = a.out.join("policy");
+    let dir = a.common.out.join("policy");
     let o = policy::run(&scene, &settings, &dir, &|step, k, n| {
         pb.set_length(n as u64);
         pb.set_position(k as u64);
         pb.set_message(step.to_string());
     })?;
     pb.finish_and_clear();
-    let command = format!("powderlab study policy --out {}", a.out.display());
+    let command = format!("powderlab study policy --out {}", a.common.out.display());
     let md = policy::report(
         &o,
         &settings,
@@ -199,11 +204,12 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
         &command,
         &powderlab::lab::study::optimizers::machine(),
     );
-    powderlab::util::create_output_dir(&a.results, "--results")?;
-    policy::figure(&a.results.join("policy.svg"), &o.curve, &o.iterations)?;
-    powderlab::util::write_atomic(&a.results.join("policy.md"), md.as_bytes())?;
+    powderlab::util::create_output_dir(&a.page.results, "--results")?;
+    policy::figure(&a.page.results.join("policy.svg"), &o.curve, &o.iterations)?;
+    powderlab::util::write_atomic(&a.page.results.join("policy.md"), md.as_bytes())?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
         "policy.md and policy.svg",
@@ -214,7 +220,7 @@ pub(super) fn policy_cmd(a: Args) -> Result<()> {
 
 /// `powderlab study pour`: the gravimetric pour on the policy page's held-out draws, at dx =
 /// 5 mm (20) and 2.5 mm (the first 6).
-pub(super) fn pour_cmd(a: Args) -> Result<()> {
+pub(super) fn pour_cmd(a: args::Pour) -> Result<()> {
     use powderlab::lab::study::pour;
     let load = |p: &str| powderlab::scene::Scene::load(p);
     let coarse_scene = load("scenes/policy_dosing.ron")?;
@@ -236,7 +242,7 @@ pub(super) fn pour_cmd(a: Args) -> Result<()> {
         seed: 0,
     };
     let start = Instant::now();
-    let dir = a.out.join("pour");
+    let dir = a.common.out.join("pour");
     let faster = powderlab::lab::policy::pour::Gravimetric {
         turn_back_deg: Some(settings.faster_turn_back_deg),
         ..settings.pour
@@ -259,7 +265,7 @@ pub(super) fn pour_cmd(a: Args) -> Result<()> {
             "dx-5mm-tapped",
         ),
     ] {
-        let pb = super::super::bar(n as u64, a.json);
+        let pb = super::super::bar(n as u64, a.common.json);
         pb.set_message(sub.to_string());
         let r = pour::run(scene, g, settings.seed, n, &dir.join(sub), &|k| {
             pb.set_position(k as u64)
@@ -267,8 +273,8 @@ pub(super) fn pour_cmd(a: Args) -> Result<()> {
         pb.finish_and_clear();
         rows.push(r);
     }
-    let policy = pour::policy_trials(&a.out.join("policy"));
-    let command = format!("powderlab study pour --out {}", a.out.display());
+    let policy = pour::policy_trials(&a.common.out.join("policy"));
+    let command = format!("powderlab study pour --out {}", a.common.out.display());
     let md = pour::report(
         &rows[0],
         &rows[1],
@@ -288,12 +294,13 @@ pub(super) fn pour_cmd(a: Args) -> Result<()> {
             _ => bail!("scenes/policy_dosing.ron: its spoon has no skill"),
         },
     );
-    powderlab::util::create_output_dir(&a.results, "--results")?;
+    powderlab::util::create_output_dir(&a.page.results, "--results")?;
     let (c, f) = pour::shown(&rows[0], &rows[1]).unzip();
-    pour::figure(&a.results.join("pour.svg"), c, f)?;
-    powderlab::util::write_atomic(&a.results.join("pour.md"), md.as_bytes())?;
+    pour::figure(&a.page.results.join("pour.svg"), c, f)?;
+    powderlab::util::write_atomic(&a.page.results.join("pour.md"), md.as_bytes())?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
         "pour.md and pour.svg",
@@ -307,7 +314,7 @@ const POUR_MINUTES: f64 = 11.0;
 
 /// `powderlab study calibration`: recovery of known parameters from noisy synthetic
 /// observations, Adam and BFGS on the adjoint against CMA-ES at equal compute.
-pub(super) fn calibration_cmd(a: Args) -> Result<()> {
+pub(super) fn calibration_cmd(a: args::Calibration) -> Result<()> {
     use powderlab::lab::study::calibration;
     if a.seeds == 0 || a.budget == 0 {
         bail!("study calibration: --seeds and --budget must be at least 1");
@@ -331,7 +338,7 @@ pub(super) fn calibration_cmd(a: Args) -> Result<()> {
     };
     super::super::announce_work(std::path::Path::new(calibration::layers::SCENE), layers)?;
     let total = total + layers;
-    let pb = super::super::bar(total.ceil() as u64, a.json);
+    let pb = super::super::bar(total.ceil() as u64, a.common.json);
     let pb2 = pb.clone();
     let done = std::sync::Mutex::new(0.0f64);
     let progress = move |c: f64| {
@@ -346,7 +353,7 @@ pub(super) fn calibration_cmd(a: Args) -> Result<()> {
     let start = Instant::now();
     // Each rollout runs on one thread; the pairs run side by side.
     let outcome = calibration::run(
-        &a.out.join("calibration"),
+        &a.common.out.join("calibration"),
         a.seeds,
         budget,
         Some(1),
@@ -357,17 +364,18 @@ pub(super) fn calibration_cmd(a: Args) -> Result<()> {
         "powderlab study calibration --seeds {} --budget {}",
         a.seeds, a.budget
     );
-    powderlab::util::create_output_dir(&a.results, "--results")?;
+    powderlab::util::create_output_dir(&a.page.results, "--results")?;
     let machine = powderlab::lab::study::optimizers::machine();
-    let mut md = calibration::report(&outcome, &command, &machine, budget, &a.results)?;
+    let mut md = calibration::report(&outcome, &command, &machine, budget, &a.page.results)?;
     md.push_str(&calibration::layers::report(
         &outcome.layers,
         budget,
-        &a.results,
+        &a.page.results,
     )?);
-    powderlab::util::write_atomic(&a.results.join("calibration.md"), md.as_bytes())?;
+    powderlab::util::write_atomic(&a.page.results.join("calibration.md"), md.as_bytes())?;
     print_page(
-        &a,
+        a.common.json,
+        &a.page.results,
         &md,
         start,
         "calibration.md, calibration.svg and calibration_layers.svg",
@@ -378,7 +386,7 @@ pub(super) fn calibration_cmd(a: Args) -> Result<()> {
 
 /// `study reliability`: `simulate` on mutated scenes under a memory cap and a timeout; writes
 /// docs/results/reliability.md. Resumes from OUT/reliability/cases.jsonl.
-pub(super) fn reliability_cmd(a: Args) -> Result<()> {
+pub(super) fn reliability_cmd(a: args::Reliability) -> Result<()> {
     use powderlab::lab::study::reliability;
     let cfg = reliability::Config {
         cases: a.cases,
@@ -390,8 +398,8 @@ pub(super) fn reliability_cmd(a: Args) -> Result<()> {
         bail!("--cases, --cap-gb, --timeout-s and --jobs must be positive");
     }
     let exe = std::env::current_exe().context("cannot find this executable")?;
-    let dir = a.out.join("reliability");
-    let pb = super::super::bar(cfg.cases as u64, a.json);
+    let dir = a.common.out.join("reliability");
+    let pb = super::super::bar(cfg.cases as u64, a.common.json);
     let start = Instant::now();
     let records = reliability::run(&exe, std::path::Path::new("."), &dir, &cfg, &|k, n| {
         pb.set_length(n as u64);
@@ -408,9 +416,9 @@ pub(super) fn reliability_cmd(a: Args) -> Result<()> {
         &command,
         &powderlab::lab::study::optimizers::machine(),
     );
-    let page = a.results.join("reliability.md");
-    std::fs::create_dir_all(&a.results)
-        .with_context(|| format!("cannot create {}", a.results.display()))?;
+    let page = a.page.results.join("reliability.md");
+    std::fs::create_dir_all(&a.page.results)
+        .with_context(|| format!("cannot create {}", a.page.results.display()))?;
     powderlab::util::write_atomic(&page, md.as_bytes())
         .with_context(|| format!("writing {}", page.display()))?;
     let problems = records.iter().filter(|r| r.problem.is_some()).count();

@@ -1,14 +1,13 @@
 //! The calibration's journal: every rollout appended as it finishes, read back on a resume.
 
 use super::{Calibration, Eval};
-use anyhow::Context;
 use serde::{Deserialize, Serialize};
 
 /// The rollouts of a calibration run, appended one JSON line each to a file as they finish, so
 /// that a killed run resumes where it stopped: a rollout already in the file (same method, index
 /// and pass, and bitwise the same `u`) is read back instead of run.
 pub struct Journal {
-    file: Option<std::fs::File>,
+    file: Option<crate::lab::journal::Journal<Line>>,
     done: std::collections::HashMap<(String, usize, bool), Eval>,
     /// Rollouts read back instead of run.
     pub replayed: usize,
@@ -34,20 +33,12 @@ impl Journal {
     /// Opens (or creates) the journal at `path`, reading what it holds. A torn last line (a
     /// kill mid-write) is dropped.
     pub fn open(path: &std::path::Path) -> anyhow::Result<Journal> {
+        let (file, lines) = crate::lab::journal::Journal::<Line>::open(path)?;
         let mut done = std::collections::HashMap::new();
-        if let Ok(text) = std::fs::read_to_string(path) {
-            for l in text.lines() {
-                if let Ok(line) = serde_json::from_str::<Line>(l) {
-                    let grad = line.eval.grad.is_some();
-                    done.insert((line.method, line.index, grad), line.eval);
-                }
-            }
+        for line in lines {
+            let grad = line.eval.grad.is_some();
+            done.insert((line.method, line.index, grad), line.eval);
         }
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(path)
-            .with_context(|| format!("cannot open the journal {}", path.display()))?;
         Ok(Journal {
             file: Some(file),
             done,
@@ -87,15 +78,12 @@ impl Journal {
 
     /// Appends a finished rollout.
     pub fn record(&mut self, method: &str, index: usize, e: &Eval) -> anyhow::Result<()> {
-        if let Some(f) = &mut self.file {
-            use std::io::Write;
-            let line = Line {
+        if let Some(f) = &self.file {
+            f.append(&Line {
                 method: method.into(),
                 index,
                 eval: e.clone(),
-            };
-            writeln!(f, "{}", serde_json::to_string(&line)?)?;
-            f.flush()?;
+            })?;
         }
         self.done
             .insert((method.to_string(), index, e.grad.is_some()), e.clone());

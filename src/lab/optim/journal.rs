@@ -6,17 +6,15 @@
 //! any thread count). A resumed run therefore re-executes the methods from the start and asks
 //! the journal before each rollout: a rollout already recorded, with bitwise the same Θ, is
 //! replayed from the journal instead of simulated. A kill loses at most the rollouts in flight;
-//! a torn last line (killed mid-write) is dropped on resume.
+//! a torn last line (killed mid-write) is cut off on resume (`lab::journal`, the store every
+//! resumable command shares).
 
 use super::problem::Outcome;
 use super::Method;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::fs::{File, OpenOptions};
-use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
 
 /// One finished rollout.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -45,8 +43,7 @@ fn key(method: Method, seed: usize, batch: usize, theta: &[f64; 5]) -> Key {
 
 /// The journal of one run directory.
 pub struct Journal {
-    path: PathBuf,
-    file: Mutex<File>,
+    file: crate::lab::journal::Journal<Record>,
     known: HashMap<Key, Record>,
     replayed: AtomicUsize,
     ran: AtomicUsize,
@@ -54,44 +51,19 @@ pub struct Journal {
 
 impl Journal {
     /// Opens `path`: a new, empty journal unless `resume`, in which case the finished rollouts
-    /// it holds are loaded (a torn last line is dropped).
+    /// it holds are loaded (a torn last line is cut off).
     pub fn open(path: &Path, resume: bool) -> anyhow::Result<Journal> {
-        let mut records = Vec::new();
-        if resume && path.exists() {
-            let text = std::fs::read_to_string(path)?;
-            let mut good_bytes = 0usize;
-            for line in BufReader::new(text.as_bytes()).lines() {
-                let line = line?;
-                match serde_json::from_str::<Record>(&line) {
-                    Ok(r) => {
-                        records.push(r);
-                        good_bytes += line.len() + 1;
-                    }
-                    Err(_) => break,
-                }
-            }
-            if good_bytes < text.len() {
-                // A line torn by a kill: drop it and anything after it.
-                let f = OpenOptions::new().write(true).open(path)?;
-                f.set_len(good_bytes as u64)?;
-                f.sync_all()?;
-            }
-        }
-        let file = OpenOptions::new()
-            .create(true)
-            .append(true)
-            .truncate(false)
-            .open(path)?;
-        if !resume {
-            file.set_len(0)?;
-        }
+        let (file, records): (_, Vec<Record>) = if resume {
+            crate::lab::journal::Journal::open(path)?
+        } else {
+            (crate::lab::journal::Journal::create(path)?, Vec::new())
+        };
         let known = records
             .into_iter()
             .map(|r| (key(r.method, r.seed, r.batch, &r.theta), r))
             .collect();
         Ok(Journal {
-            path: path.to_path_buf(),
-            file: Mutex::new(file),
+            file,
             known,
             replayed: AtomicUsize::new(0),
             ran: AtomicUsize::new(0),
@@ -99,7 +71,7 @@ impl Journal {
     }
 
     pub fn path(&self) -> &Path {
-        &self.path
+        self.file.path()
     }
 
     /// The recorded rollout for this method, seed, batch and Θ (bitwise), if any.
@@ -119,13 +91,7 @@ impl Journal {
 
     /// Appends a finished rollout and syncs it to disk.
     pub fn append(&self, r: &Record) -> anyhow::Result<()> {
-        let mut line = serde_json::to_string(r)?;
-        line.push('\n');
-        {
-            let mut f = self.file.lock().expect("journal lock");
-            f.write_all(line.as_bytes())?;
-            f.sync_data()?;
-        }
+        self.file.append(r)?;
         self.ran.fetch_add(1, Ordering::Relaxed);
         Ok(())
     }

@@ -160,7 +160,7 @@ impl Method {
 /// in anything but the methods.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Settings {
-    /// FNV-1a hash of the scene file's text.
+    /// The scene's fingerprint (`Scene::fingerprint`: its parsed fields, not its text).
     pub scene_hash: String,
     pub methods: Vec<Method>,
     /// Rollouts per seed and method.

@@ -1,11 +1,9 @@
 //! The rollouts of a plan, one JSON line each, keyed by the node's path and the action's bits:
 //! a plan killed and run again finds what it had instead of simulating it again. A line cut
-//! short by the kill does not parse and is dropped.
+//! short by the kill is cut off (`lab::journal`).
 
-use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::io::Write;
 use std::path::Path;
 
 /// Hears of every rollout of a plan: the rollouts so far and a message.
@@ -25,27 +23,15 @@ pub struct Entry {
 #[derive(Default)]
 pub struct Journal {
     map: HashMap<String, Entry>,
-    file: Option<std::fs::File>,
+    file: Option<crate::lab::journal::Journal<Entry>>,
 }
 
 impl Journal {
     /// Reads `path` if it exists and appends to it from now on.
     pub fn open(path: &Path) -> anyhow::Result<Journal> {
-        let mut map = HashMap::new();
-        if let Ok(text) = std::fs::read_to_string(path) {
-            for line in text.lines() {
-                if let Ok(e) = serde_json::from_str::<Entry>(line) {
-                    map.insert(e.key.clone(), e);
-                }
-            }
-        }
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(path)
-            .with_context(|| format!("opening the journal {}", path.display()))?;
+        let (file, entries) = crate::lab::journal::Journal::<Entry>::open(path)?;
         Ok(Journal {
-            map,
+            map: entries.into_iter().map(|e| (e.key.clone(), e)).collect(),
             file: Some(file),
         })
     }
@@ -54,11 +40,10 @@ impl Journal {
         self.map.get(key)
     }
 
-    /// Records a rollout (written and flushed before it counts).
+    /// Records a rollout (written and synced before it counts).
     pub fn put(&mut self, e: Entry) -> anyhow::Result<()> {
-        if let Some(f) = &mut self.file {
-            writeln!(f, "{}", serde_json::to_string(&e)?)?;
-            f.flush()?;
+        if let Some(f) = &self.file {
+            f.append(&e)?;
         }
         self.map.insert(e.key.clone(), e);
         Ok(())

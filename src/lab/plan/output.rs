@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 
 /// The journal of the plans of `scene` from `seed`, in `out`.
 pub fn journal_path(out: &Path, scene: &Scene, seed: u64) -> PathBuf {
-    let fp = crate::util::fnv1a(&format!("{}\n{seed}", scene.source));
+    let fp = crate::util::fnv1a(&format!("{}\n{seed}", scene.fingerprint()));
     out.join(format!("journal-{fp}.jsonl"))
 }
 

@@ -42,7 +42,7 @@ pub const SCENES: usize = 160;
 /// How a dataset is made; a resumed run must use the same.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Config {
-    /// FNV-1a of the scene file's text.
+    /// The scene's fingerprint (`Scene::fingerprint`: its parsed fields, not its text).
     pub scene_hash: String,
     /// Randomised scenes.
     pub scenes: usize,

@@ -212,7 +212,7 @@ pub fn run(
 ) -> anyhow::Result<Vec<SceneEval>> {
     crate::util::create_output_dir(dir, "--dir")?;
     let cfg_path = dir.join("eval-config.json");
-    let hash = crate::util::fnv1a(&base.source);
+    let hash = base.fingerprint();
     let stamp = serde_json::json!({ "config": cfg, "scene_hash": hash });
     super::file::stamped(&cfg_path, &stamp, "an evaluation", "--dir")?;
     let spec = spec_of(base)?;

@@ -18,7 +18,6 @@ use crate::util::write_atomic;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::io::Write as _;
 use std::path::Path;
 
 /// The losses compared.
@@ -159,16 +158,12 @@ pub fn run(
 ) -> anyhow::Result<HashMap<Key, Rollout>> {
     crate::util::create_output_dir(dir, "--out")?;
     let path = dir.join("rollouts.jsonl");
-    let mut done: HashMap<Key, Rollout> = HashMap::new();
-    if let Ok(text) = std::fs::read_to_string(&path) {
-        // A torn last line (killed mid-write) is dropped.
-        for r in text
-            .lines()
-            .filter_map(|l| serde_json::from_str::<Rollout>(l).ok())
-        {
-            done.insert(key(r.kind, &r.theta), r);
-        }
-    }
+    // A torn last line (killed mid-write) is cut off.
+    let (file, kept) = crate::lab::journal::Journal::<Rollout>::open(&path)?;
+    let mut done: HashMap<Key, Rollout> = kept
+        .into_iter()
+        .map(|r| (key(r.kind, &r.theta), r))
+        .collect();
     let mut jobs: Vec<(Kind, [f64; 5])> = Vec::new();
     for &t in points {
         jobs.extend(LOSSES.iter().map(|&k| (k, t)));
@@ -184,20 +179,11 @@ pub fn run(
     jobs.sort_by_key(|a| key(a.0, &a.1));
     jobs.dedup();
     jobs.retain(|(k, t)| !done.contains_key(&key(*k, t)));
-    let file = std::sync::Mutex::new(
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)?,
-    );
     let new: Vec<Rollout> = jobs
         .par_iter()
         .map(|&(k, t)| {
             let r = run_one(problem, k, t)?;
-            let mut f = file.lock().expect("lock");
-            writeln!(f, "{}", serde_json::to_string(&r)?)?;
-            f.flush()?;
-            drop(f);
+            file.append(&r)?;
             progress();
             Ok(r)
         })

@@ -16,7 +16,6 @@ pub use crate::lab::optim::sobol_thetas;
 use crate::util::{write_atomic, SplitMix64};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
-use std::io::Write as _;
 use std::path::Path;
 
 /// Bootstrap draws per `k`.
@@ -68,15 +67,8 @@ pub fn main_effects(points: &[Point]) -> [[f64; 4]; 5] {
 
 /// The rollouts of `rollouts.jsonl` in `dir`, if any.
 pub fn load(dir: &Path) -> anyhow::Result<Vec<Point>> {
-    let path = dir.join("rollouts.jsonl");
-    let Ok(text) = std::fs::read_to_string(&path) else {
-        return Ok(Vec::new());
-    };
-    // A line cut off by a kill is dropped; the rollout runs again.
-    Ok(text
-        .lines()
-        .filter_map(|l| serde_json::from_str(l).ok())
-        .collect())
+    // A line cut off by a kill is left out; the rollout runs again.
+    crate::lab::journal::read(&dir.join("rollouts.jsonl"))
 }
 
 /// Runs the rollouts of `thetas` not yet in `dir` (in parallel), appending each as it finishes.
@@ -88,8 +80,8 @@ pub fn run(
 ) -> anyhow::Result<Vec<Point>> {
     use rayon::prelude::*;
     crate::util::create_output_dir(dir, "--out")?;
-    // The rollouts kept in `dir` are reused only for the same scene text.
-    let hash = crate::util::fnv1a(&problem.scene.source);
+    // The rollouts kept in `dir` are reused only for the same parsed scene.
+    let hash = problem.scene.fingerprint();
     let stamp = dir.join("scene.fnv1a");
     match std::fs::read_to_string(&stamp) {
         Ok(old) if old.trim() != hash => anyhow::bail!(
@@ -99,16 +91,12 @@ pub fn run(
         Ok(_) => {}
         Err(_) => write_atomic(&stamp, hash.as_bytes())?,
     }
-    let mut done = load(dir)?;
+    // A torn last line (killed mid-write) is cut off.
+    let (file, mut done) =
+        crate::lab::journal::Journal::<Point>::open(&dir.join("rollouts.jsonl"))?;
     let todo: Vec<usize> = (0..thetas.len())
         .filter(|i| !done.iter().any(|p| p.index == *i))
         .collect();
-    let file = std::sync::Mutex::new(
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(dir.join("rollouts.jsonl"))?,
-    );
     let new: Vec<Point> = todo
         .par_iter()
         .map(|&i| {
@@ -120,10 +108,7 @@ pub fn run(
                 indicator: o.indicator,
                 transported: o.transported,
             };
-            let mut f = file.lock().expect("lock");
-            writeln!(f, "{}", serde_json::to_string(&p)?)?;
-            f.flush()?;
-            drop(f);
+            file.append(&p)?;
             progress();
             Ok(p)
         })

@@ -310,7 +310,7 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
             .unwrap_or_else(|| "task".into());
         let out = o.out.join(&stem);
         let settings = optim::Settings {
-            scene_hash: crate::util::fnv1a(&scene.source),
+            scene_hash: scene.fingerprint(),
             methods: o.methods.clone(),
             epochs: o.budget,
             seeds: o.seeds,

@@ -85,7 +85,7 @@ pub fn run(
     let stamp = serde_json::json!({
         "pour": g,
         "seed": seed,
-        "scene_hash": crate::util::fnv1a(&base.source),
+        "scene_hash": base.fingerprint(),
     });
     crate::lab::policy::file::stamped(&dir.join("pour-config.json"), &stamp, "pours", "--out")?;
     let done = std::sync::atomic::AtomicUsize::new(0);

@@ -10,7 +10,6 @@ use crate::scene::fuzz;
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -281,15 +280,10 @@ pub fn run_case(
 
 /// The journal's records, by (seed, k). A torn last line (a kill mid-write) is skipped.
 pub fn read_journal(path: &Path) -> Result<BTreeMap<(String, u64), Record>> {
-    let mut out = BTreeMap::new();
-    if let Ok(text) = std::fs::read_to_string(path) {
-        for line in text.lines() {
-            if let Ok(r) = serde_json::from_str::<Record>(line) {
-                out.insert((r.seed.clone(), r.k), r);
-            }
-        }
-    }
-    Ok(out)
+    Ok(crate::lab::journal::read::<Record>(path)?
+        .into_iter()
+        .map(|r| ((r.seed.clone(), r.k), r))
+        .collect())
 }
 
 /// Runs the cases the journal lacks, `cfg.jobs` at a time, appending each as it ends, and
@@ -303,7 +297,12 @@ pub fn run(
 ) -> Result<Vec<Record>> {
     std::fs::create_dir_all(dir)?;
     let journal = dir.join("cases.jsonl");
-    let done = read_journal(&journal)?;
+    // A torn last line (killed mid-write) is cut off.
+    let (writer, kept) = crate::lab::journal::Journal::<Record>::open(&journal)?;
+    let done: BTreeMap<(String, u64), Record> = kept
+        .into_iter()
+        .map(|r| ((r.seed.clone(), r.k), r))
+        .collect();
     let seeds = fuzz::seeds(root)
         .with_context(|| format!("reading the seed scenes under {}", root.display()))?;
     let texts: Vec<(String, Vec<u8>)> = seeds
@@ -324,13 +323,6 @@ pub fn run(
         .collect();
     let next = std::sync::atomic::AtomicUsize::new(0);
     let finished = std::sync::atomic::AtomicUsize::new(cfg.cases - todo.len());
-    let writer = std::sync::Mutex::new(
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&journal)
-            .with_context(|| format!("opening {}", journal.display()))?,
-    );
     progress(
         finished.load(std::sync::atomic::Ordering::Relaxed),
         cfg.cases,
@@ -346,12 +338,7 @@ pub fn run(
                         };
                         let (name, text) = &texts[seed];
                         let r = run_case(exe, dir, name, text, k, cfg)?;
-                        let line = serde_json::to_string(&r)?;
-                        {
-                            let mut w = writer.lock().expect("journal lock");
-                            writeln!(w, "{line}")?;
-                            w.flush()?;
-                        }
+                        writer.append(&r)?;
                         let f = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                         progress(f, cfg.cases);
                     }

@@ -62,7 +62,7 @@ fn race(
     init: Option<[f64; 5]>,
 ) -> anyhow::Result<Vec<f64>> {
     let settings = optim::Settings {
-        scene_hash: crate::util::fnv1a(&scene.source),
+        scene_hash: scene.fingerprint(),
         methods: vec![Method::Cmaes],
         epochs: BUDGET,
         seeds: SEEDS,

@@ -36,9 +36,7 @@ use crate::util::SplitMix64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use std::io::Write as _;
 use std::path::Path;
-use std::sync::Mutex;
 
 /// Adam's learning rate on `w` (a tenth of the box's half-width per step).
 pub const ADAM_LR: f64 = 0.1;
@@ -70,7 +68,7 @@ type Key = (usize, String, usize, usize);
 /// The rollouts of a study folder, replayed or run.
 pub struct Store {
     known: HashMap<Key, Rollout>,
-    file: Mutex<std::fs::File>,
+    file: crate::lab::journal::Journal<Rollout>,
     progress: Box<dyn Fn() + Sync>,
 }
 
@@ -78,23 +76,15 @@ impl Store {
     pub fn open(dir: &Path, progress: Box<dyn Fn() + Sync>) -> anyhow::Result<Store> {
         crate::util::create_output_dir(dir, "--out")?;
         let path = dir.join("rollouts.jsonl");
-        let mut known = HashMap::new();
-        if let Ok(text) = std::fs::read_to_string(&path) {
-            // A torn last line (killed mid-write) is dropped.
-            for r in text
-                .lines()
-                .filter_map(|l| serde_json::from_str::<Rollout>(l).ok())
-            {
-                known.insert((r.knots, r.method.clone(), r.seed, r.index), r);
-            }
-        }
-        let file = std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&path)?;
+        // A torn last line (killed mid-write) is cut off.
+        let (file, rollouts) = crate::lab::journal::Journal::<Rollout>::open(&path)?;
+        let known = rollouts
+            .into_iter()
+            .map(|r| ((r.knots, r.method.clone(), r.seed, r.index), r))
+            .collect();
         Ok(Store {
             known,
-            file: Mutex::new(file),
+            file,
             progress,
         })
     }
@@ -141,10 +131,7 @@ impl Store {
             grad,
             indicator: o.indicator,
         };
-        let mut f = self.file.lock().expect("lock");
-        writeln!(f, "{}", serde_json::to_string(&r)?)?;
-        f.flush()?;
-        drop(f);
+        self.file.append(&r)?;
         (self.progress)();
         Ok(r)
     }
