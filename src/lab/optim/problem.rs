@@ -1,15 +1,15 @@
 //! The optimisation problem: a scene whose tool follows a skill, and one rollout at given skill
 //! parameters Θ (forward only, or with `∂L/∂Θ` from the adjoint pass).
 
-use crate::adjoint::loss::scene_loss;
 use crate::adjoint::tape::{gradient_with, Carry, Loss, Tape, Term};
 use crate::error::FieldError;
+use crate::rollout::{Prepared, Request, Rollout, Variant};
 use crate::scene::{ControlSpec, Scene, TargetValue};
-use crate::sim::{Build, SimOptions, Simulation};
+use crate::sim::Simulation;
 use anyhow::Context;
-use std::time::Instant;
 
-/// A scene prepared for optimisation.
+/// A scene prepared for optimisation: the skill problem over the core's one rollout path
+/// ([`crate::rollout::Prepared`]), which it calls for every Θ.
 #[derive(Clone, Debug)]
 pub struct Problem {
     pub scene: Scene,
@@ -20,9 +20,8 @@ pub struct Problem {
     pub target: TargetValue,
     /// Memory budget of one backward pass's tape (bytes).
     pub tape_budget: usize,
-    /// The scene checked and built once (its particle fills and container contact tables);
-    /// every rollout reuses it with its own controls.
-    build: Build,
+    /// The scene checked and built once; every rollout reuses it with its own controls.
+    prepared: Prepared,
 }
 
 /// What one rollout gives.
@@ -57,13 +56,12 @@ impl Problem {
                 "Some((target: \"cup\", target_value: Particles(n) | Grams(g))): the indicator needs a target",
             )));
         };
-        let loss = scene_loss(&scene);
-        let build = Build::new(&scene)?;
+        let prepared = Prepared::new(scene.clone())?;
         Ok(Problem {
-            build,
+            loss: prepared.loss.clone(),
+            prepared,
             scene,
             tool,
-            loss,
             target: task.target_value,
             tape_budget,
         })
@@ -75,18 +73,13 @@ impl Problem {
         mut self,
         states: &[crate::components::BodyState],
     ) -> anyhow::Result<Problem> {
-        self.build = self.build.with_start(&self.scene, states)?;
+        self.prepared = self.prepared.with_start(states)?;
         Ok(self)
     }
 
     /// The powder's particle positions before the first step, over every body.
     pub fn initial_positions(&self) -> Vec<glam::DVec3> {
-        self.build
-            .prepared
-            .bodies
-            .iter()
-            .flat_map(|b| b.x.iter().copied())
-            .collect()
+        self.prepared.initial_positions()
     }
 
     /// The Θ written in the scene.
@@ -118,33 +111,47 @@ impl Problem {
         &self,
         theta: [f64; 5],
         shared_pool: bool,
-        edit: impl FnOnce(&mut Vec<[f64; 6]>, [usize; 6]),
+        edit: impl Fn(&mut Vec<[f64; 6]>, [usize; 6]),
     ) -> anyhow::Result<Simulation> {
-        let scene = self.scene_at(theta);
-        let tool = &scene.colliders[self.tool];
-        let Some(ControlSpec::Skill(sk)) = &tool.control else {
-            unreachable!("checked in Problem::new")
-        };
-        // The skill's ranges map [−1, 1] to physical values; outside the box the mapping would
-        // extrapolate silently. The skill's own check refuses it, as for a scene file's Θ.
-        sk.validate().map_err(|e| {
-            anyhow::anyhow!(
-                "Θ = {theta:?}: {} = {} is not {}; clamp Θ to [−1, 1]⁵",
-                e.field,
-                e.value,
-                e.expected
-            )
-        })?;
-        let (mut controls, phases) = sk.controls(scene.simulation.dt, Scene::tool_bottom(tool));
-        edit(&mut controls, phases);
-        let build = self.build.with_controls(&scene, self.tool, controls)?;
-        Ok(build.simulation(
-            scene,
-            &SimOptions {
+        self.prepared.simulation(
+            &self.request(theta, false),
+            &Variant {
+                edit: Some(&edit),
                 shared_pool,
                 ..Default::default()
             },
-        )?)
+        )
+    }
+
+    /// The core's request for a rollout at Θ, with the gradient if asked, on this problem's tape.
+    fn request(&self, theta: [f64; 5], grad: bool) -> Request {
+        Request {
+            theta: Some(theta),
+            grad,
+            tape_budget: self.tape_budget,
+            ..Default::default()
+        }
+    }
+
+    /// One rollout at Θ through the core's one path, with the variant `v`, as an [`Outcome`].
+    fn rollout(
+        &self,
+        theta: [f64; 5],
+        grad: bool,
+        v: &Variant,
+    ) -> anyhow::Result<(Outcome, Rollout)> {
+        let r = self.prepared.run(&self.request(theta, grad), v)?;
+        let outcome = Outcome {
+            loss: r.loss.expect("the loss is evaluated"),
+            indicator: r.indicator.expect("checked in Problem::new: a task"),
+            transported: r.transported.expect("checked in Problem::new: a task"),
+            grad: r.skill.as_ref().map(|s| s.1),
+            steps: r.steps,
+            substeps: r.substeps,
+            particles: r.particles,
+            wall_s: r.wall_s,
+        };
+        Ok((outcome, r))
     }
 
     /// The residual of `knots` knots per channel on Θ's transport and pour
@@ -178,26 +185,18 @@ impl Problem {
         with_grad: bool,
         shared_pool: bool,
     ) -> anyhow::Result<(Outcome, Option<Vec<f64>>)> {
-        let t0 = Instant::now();
-        let mut sim = self.simulation_with(theta, shared_pool, |u, _| residual.apply(u, w))?;
-        let steps = sim.horizon;
-        let (loss, grad) = if with_grad {
-            let g = gradient_with(
-                &mut sim,
-                steps,
-                &self.loss,
-                &[],
-                Tape::Budget(self.tape_budget),
-            )?;
-            let name = sim.scene.colliders[self.tool].name.clone();
-            let g_u = g.tool_controls(&name).expect("the skill tool has controls");
-            (g.loss, Some(residual.apply_adj(g_u)))
-        } else {
-            sim.run(steps, |_| {})?;
-            let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
-            (self.loss.eval(&xs).0, None)
+        let edit = |u: &mut Vec<[f64; 6]>, _: [usize; 6]| residual.apply(u, w);
+        let v = Variant {
+            edit: Some(&edit),
+            shared_pool,
+            ..Default::default()
         };
-        Ok((self.outcome(&mut sim, loss, None, t0), grad))
+        let (o, r) = self.rollout(theta, with_grad, &v)?;
+        let name = &self.scene.colliders[self.tool].name;
+        let grad = r.gradients.as_ref().map(|g| {
+            residual.apply_adj(g.tool_controls(name).expect("the skill tool has controls"))
+        });
+        Ok((Outcome { grad: None, ..o }, grad))
     }
 
     /// Θ's simulation with another packing of the same powder: every particle's start position
@@ -214,29 +213,14 @@ impl Problem {
         frac: f64,
         seed: u64,
     ) -> anyhow::Result<Simulation> {
-        let mut sim = self.simulation(theta, shared_pool)?;
-        if frac == 0.0 {
-            return Ok(sim);
-        }
-        let spacing: Vec<f64> = self
-            .scene
-            .bodies
-            .iter()
-            .map(|b| self.scene.particle_spacing(b))
-            .collect();
-        let mut rng = crate::util::SplitMix64(seed);
-        let mut q = sim
-            .world
-            .query::<(&crate::components::Body, &mut crate::components::Position)>();
-        let mut bodies: Vec<_> = q.iter_mut(&mut sim.world).collect();
-        bodies.sort_by_key(|(b, _)| b.index);
-        for (b, mut x) in bodies {
-            let h = frac * spacing[b.index];
-            for p in x.0.iter_mut() {
-                *p += glam::DVec3::new(rng.normal(), rng.normal(), rng.normal()) * h;
-            }
-        }
-        Ok(sim)
+        self.prepared.simulation(
+            &self.request(theta, false),
+            &Variant {
+                repack: Some((frac, seed)),
+                shared_pool,
+                ..Default::default()
+            },
+        )
     }
 
     /// [`Problem::evaluate`] with the gradient, on another packing of the powder
@@ -248,9 +232,12 @@ impl Problem {
         frac: f64,
         seed: u64,
     ) -> anyhow::Result<Outcome> {
-        let t0 = Instant::now();
-        let sim = self.simulation_repacked(theta, shared_pool, frac, seed)?;
-        self.finish(sim, theta, true, t0)
+        let v = Variant {
+            repack: Some((frac, seed)),
+            shared_pool,
+            ..Default::default()
+        };
+        Ok(self.rollout(theta, true, &v)?.0)
     }
 
     /// Transported amount and indicator of the simulation's current state.
@@ -343,44 +330,17 @@ impl Problem {
         theta: [f64; 5],
         shared_pool: bool,
     ) -> anyhow::Result<(Outcome, f64)> {
-        let t0 = Instant::now();
         let terms = self
             .carry_terms(theta)
             .context("the carry loss needs a spoon tool (a ball about its bowl)")?;
-        let mut sim = self.simulation(theta, shared_pool)?;
-        let nothing = Loss::Linear(
-            sim.body_states()
-                .iter()
-                .map(|b| vec![glam::DVec3::ZERO; b.x.len()])
-                .collect(),
-        );
-        let (carried, grad) = self
-            .skill_gradient_with(&mut sim, &nothing, &terms)
-            .with_context(|| format!("rollout at Θ = {theta:?}"))?;
-        let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
-        let loss = self.loss.eval(&xs).0;
-        Ok((self.outcome(&mut sim, loss, Some(grad), t0), carried))
-    }
-
-    /// What a finished rollout gives: its score in the final state of `sim`.
-    fn outcome(
-        &self,
-        sim: &mut Simulation,
-        loss: f64,
-        grad: Option<[f64; 5]>,
-        t0: Instant,
-    ) -> Outcome {
-        let (transported, indicator) = self.indicator(sim);
-        Outcome {
-            loss,
-            indicator,
-            transported,
-            grad,
-            steps: sim.horizon,
-            substeps: sim.params().substeps,
-            particles: sim.particle_count(),
-            wall_s: t0.elapsed().as_secs_f64(),
-        }
+        let v = Variant {
+            terms,
+            terms_only: true,
+            shared_pool,
+            ..Default::default()
+        };
+        let (o, r) = self.rollout(theta, true, &v)?;
+        Ok((o, r.terms.expect("terms_only gives the terms' value")))
     }
 
     /// One rollout at Θ (clamped to [−1, 1] by the caller), with the gradient if asked.
@@ -390,32 +350,10 @@ impl Problem {
         with_grad: bool,
         shared_pool: bool,
     ) -> anyhow::Result<Outcome> {
-        let t0 = Instant::now();
-        let sim = self.simulation(theta, shared_pool)?;
-        self.finish(sim, theta, with_grad, t0)
-    }
-
-    /// Runs a fresh simulation of Θ through its horizon (with the backward pass if asked) and
-    /// scores it; `t0` is when the rollout started.
-    fn finish(
-        &self,
-        mut sim: Simulation,
-        theta: [f64; 5],
-        with_grad: bool,
-        t0: Instant,
-    ) -> anyhow::Result<Outcome> {
-        let steps = sim.horizon;
-        let context = || format!("rollout at Θ = {theta:?}");
-        let (loss, grad) = if with_grad {
-            let (loss, g) = self
-                .skill_gradient(&mut sim, &self.loss)
-                .with_context(context)?;
-            (loss, Some(g))
-        } else {
-            sim.run(steps, |_| {}).with_context(context)?;
-            let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
-            (self.loss.eval(&xs).0, None)
+        let v = Variant {
+            shared_pool,
+            ..Default::default()
         };
-        Ok(self.outcome(&mut sim, loss, grad, t0))
+        Ok(self.rollout(theta, with_grad, &v)?.0)
     }
 }

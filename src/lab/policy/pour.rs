@@ -156,11 +156,12 @@ pub fn rollout(
     let w_fast = sk.angular_speed_deg.to_radians() * dt;
     let w_back = g.turn_back_deg.map_or(w_fast, |v| v.to_radians() * dt);
     let w = g.speed_deg.to_radians() * dt;
-    let mut carry = 0;
+    let carry = std::cell::Cell::new(0);
     let mut sim = problem.simulation_with(theta, true, |c, phases| {
-        carry = phases[..4].iter().sum();
-        c.truncate(carry);
+        carry.set(phases[..4].iter().sum());
+        c.truncate(carry.get());
     })?;
+    let carry = carry.get();
     let context = || format!("gravimetric rollout at Θ = {theta:?}");
     sim.run(carry, |_| {}).with_context(context)?;
     let ti = problem.tool;
