@@ -28,7 +28,7 @@ pub fn policy_dataset_config(
 ) -> PyResult<String> {
     dataset::spec_of(&scene.inner).map_err(to_py)?;
     let cfg = Config {
-        scene_hash: powderlab::lab::optim::fnv1a(&scene.inner.source),
+        scene_hash: scene.inner.fingerprint(),
         scenes,
         budget,
         augment,

@@ -58,10 +58,22 @@ def test_seeding_gives_the_same_episode():
 def test_tool_control_actions_stay_within_the_substeps_speed():
     env = powderlab.envs.ToolControlEnv(TINY, max_steps=2)
     env.reset(seed=0)
+    speed, radius = env.sim.tool_limit(env.tool)
+    dt = env.base_scene.dt
     # The largest action in every component: set_controls would refuse it if it were faster
-    # than the scene's own skill.
+    # than the scene's own skill, so the step itself is part of the check.
+    t0 = env.sim.tool_pose(env.tool)[0]
     env.step(np.ones(6))
+    t1 = env.sim.tool_pose(env.tool)[0]
+    # The tool moved by the whole translation the action asked for (the tiny scene's tool is
+    # far from the box's faces), and that move used half the speed budget, as the scaling says.
+    moved = np.linalg.norm(t1 - t0)
+    assert abs(moved - 0.5 * speed * dt) < 1e-12 * max(1.0, speed * dt), (moved, speed * dt)
+    # Its rotation's share: |r|·R is the other half.
+    assert abs(np.linalg.norm(env._scale[3:]) * radius - 0.5 * speed * dt) < 1e-12
     env.step(-np.ones(6))
+    t2 = env.sim.tool_pose(env.tool)[0]
+    assert np.linalg.norm(t2 - t0) < 1e-12, "the opposite action brings the tool back"
 
 
 def test_heightfield_sees_the_powder_in_the_source_cup(tiny):
