@@ -15,6 +15,7 @@
 use powderlab::lab::optim::problem::Problem;
 use powderlab::lab::study::{cosine, norm, secant_thetas};
 use powderlab::scene::Scene;
+use powderlab::skills::Theta;
 use rayon::prelude::*;
 
 fn main() -> anyhow::Result<()> {
@@ -39,7 +40,7 @@ fn main() -> anyhow::Result<()> {
         .par_iter()
         .map(|&s| {
             let at = |sign: f64| -> anyhow::Result<f64> {
-                let t = std::array::from_fn(|i| t0[i] + sign * s * g[i] / n);
+                let t = Theta(std::array::from_fn(|i| t0[i] + sign * s * g[i] / n));
                 Ok(p.evaluate(t, false, false)?.loss)
             };
             Ok((s, at(-1.0)?, at(1.0)?))

@@ -30,6 +30,7 @@ use powderlab::lab::optim::theta_init;
 use powderlab::lab::study::{cosine, norm, parse_theta, secant_thetas};
 use powderlab::math::sdf::Shape;
 use powderlab::scene::Scene;
+use powderlab::skills::Theta;
 use rayon::prelude::*;
 
 /// Height above the cups' cavity floor, in cells, under which a grain outside both cups counts
@@ -43,7 +44,7 @@ fn round2(g: &[f64; 5]) -> [f64; 5] {
     g.map(|x| (x * 100.0).round() / 100.0)
 }
 
-fn theta_arg(s: &str) -> anyhow::Result<[f64; 5]> {
+fn theta_arg(s: &str) -> anyhow::Result<Theta> {
     if let Some(k) = s.strip_prefix("seed") {
         return Ok(theta_init(k.parse()?));
     }

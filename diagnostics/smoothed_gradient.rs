@@ -13,6 +13,7 @@
 use powderlab::lab::optim::problem::Problem;
 use powderlab::lab::study::{cosine, norm, parse_theta};
 use powderlab::scene::Scene;
+use powderlab::skills::Theta;
 use powderlab::util::SplitMix64;
 use rayon::prelude::*;
 
@@ -43,8 +44,12 @@ fn main() -> anyhow::Result<()> {
         s.map(|x| (x * 100.0).round() / 100.0)
     );
     let mut rng = SplitMix64(99);
-    let pts: Vec<[f64; 5]> = (0..n)
-        .map(|_| std::array::from_fn(|i| (t0[i] + sigma * rng.normal()).clamp(-1.0, 1.0)))
+    let pts: Vec<Theta> = (0..n)
+        .map(|_| {
+            Theta(std::array::from_fn(|i| {
+                (t0[i] + sigma * rng.normal()).clamp(-1.0, 1.0)
+            }))
+        })
         .collect();
     let gs = pts
         .par_iter()

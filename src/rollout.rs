@@ -16,6 +16,7 @@ use crate::components::BodyState;
 use crate::error::{FieldError, SceneError};
 use crate::scene::{ColliderKindSpec, ControlSpec, Scene};
 use crate::sim::{Build, SimOptions, Simulation};
+use crate::skills::Theta;
 use std::time::Instant;
 
 /// The tape's memory budget when the caller names none: 1 GiB, within which the default
@@ -26,7 +27,7 @@ pub const DEFAULT_TAPE_BUDGET: usize = 1 << 30;
 #[derive(Clone, Debug)]
 pub struct Request {
     /// Θ of the scene's skill-driven tool (it must have exactly one), replacing the scene's.
-    pub theta: Option<[f64; 5]>,
+    pub theta: Option<Theta>,
     /// One displacement per global step (translation in m, rotation vector in rad) replacing a
     /// tool's control: the tool's name, or `None` for the scene's only tool.
     pub controls: Option<(Option<String>, Vec<[f64; 6]>)>,
@@ -233,7 +234,7 @@ impl Prepared {
     }
 
     /// The scene with the skill-driven tool's Θ replaced.
-    pub fn scene_at(&self, theta: [f64; 5]) -> Result<Scene, SceneError> {
+    pub fn scene_at(&self, theta: Theta) -> Result<Scene, SceneError> {
         let mut s = self.scene.clone();
         let i = skill_tool(&s)?;
         if let Some(ControlSpec::Skill(sk)) = &mut s.colliders[i].control {

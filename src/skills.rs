@@ -12,6 +12,71 @@ use crate::error::FieldError;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 
+/// The skill parameters Θ = (θ_d, θ_s, θ_l, θ_t, θ_p) ∈ [−1, 1]⁵: scoop depth, scoop angle,
+/// lift height, transport distance, pour angle, each mapped linearly into its range of
+/// [`SkillRanges`]. A type of its own, so that a Θ is never taken for a gradient or another
+/// five numbers; it reads and writes as the five numbers (scene files, journals, JSON), and
+/// indexes and iterates as them.
+#[derive(Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Theta(pub [f64; 5]);
+
+impl Theta {
+    /// Each component's bits: what a journal keys a rollout by (a resumed run must meet
+    /// bitwise the same Θ).
+    pub fn bits(&self) -> [u64; 5] {
+        self.0.map(f64::to_bits)
+    }
+}
+
+/// Prints as the five numbers, so that messages read `Θ = [0.1, …]`.
+impl std::fmt::Debug for Theta {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.0.fmt(f)
+    }
+}
+
+impl std::ops::Deref for Theta {
+    type Target = [f64; 5];
+    fn deref(&self) -> &[f64; 5] {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Theta {
+    fn deref_mut(&mut self) -> &mut [f64; 5] {
+        &mut self.0
+    }
+}
+
+impl<'a> IntoIterator for &'a Theta {
+    type Item = &'a f64;
+    type IntoIter = std::slice::Iter<'a, f64>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.0.iter()
+    }
+}
+
+impl IntoIterator for Theta {
+    type Item = f64;
+    type IntoIter = std::array::IntoIter<f64, 5>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.0.into_iter()
+    }
+}
+
+impl From<[f64; 5]> for Theta {
+    fn from(t: [f64; 5]) -> Theta {
+        Theta(t)
+    }
+}
+
+impl From<Theta> for [f64; 5] {
+    fn from(t: Theta) -> [f64; 5] {
+        t.0
+    }
+}
+
 /// Physical ranges of the five skill parameters.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -33,7 +98,7 @@ pub struct SkillRanges {
 #[serde(deny_unknown_fields)]
 pub struct SkillSpec {
     /// Θ ∈ [−1, 1]⁵: depth, scoop angle, lift, transport, pour.
-    pub theta: [f64; 5],
+    pub theta: Theta,
     pub ranges: SkillRanges,
     /// Linear tool speed (m/s).
     pub linear_speed: f64,
@@ -320,7 +385,7 @@ mod tests {
 
     fn spec() -> SkillSpec {
         SkillSpec {
-            theta: [0.0, 0.5, -0.5, 1.0, -1.0],
+            theta: Theta([0.0, 0.5, -0.5, 1.0, -1.0]),
             ranges: SkillRanges {
                 scoop_depth: (0.005, 0.02),
                 scoop_angle_deg: (10.0, 60.0),
@@ -349,14 +414,14 @@ mod tests {
         let mut s = spec();
         // Away from the points where a step count rounds differently (θ_d = 0 gives a descent
         // of exactly 32.5 steps here).
-        s.theta = [0.1, 0.5, -0.2, 0.7, -0.6];
+        s.theta = Theta([0.1, 0.5, -0.2, 0.7, -0.6]);
         let (dt, bottom) = (0.01, 0.05);
         let (u0, _) = s.controls(dt, bottom);
         let w: Vec<[f64; 6]> = (0..u0.len())
             .map(|i| std::array::from_fn(|k| ((i * 7 + k * 3) % 11) as f64 - 5.0))
             .collect();
         let g = s.controls_adj(dt, bottom, &w);
-        let f = |theta: [f64; 5]| {
+        let f = |theta: Theta| {
             let mut t = s.clone();
             t.theta = theta;
             let (u, _) = t.controls(dt, bottom);

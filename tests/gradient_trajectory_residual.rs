@@ -5,6 +5,7 @@
 #![cfg(feature = "lab")]
 
 use powderlab::lab::optim::problem::Problem;
+use powderlab::skills::Theta;
 use powderlab::util::SplitMix64;
 
 mod common;
@@ -33,7 +34,7 @@ fn residual_gradient_matches_a_central_difference() {
     let p = Problem::new(scene, 1 << 30).unwrap();
     // The deepest scoop at the steepest angle and the lowest lift: the spoon carries grains
     // through the transport, so the residual moves them.
-    let theta = [1.0, -1.0, -1.0, 0.0, 0.0];
+    let theta = Theta([1.0, -1.0, -1.0, 0.0, 0.0]);
     let r = p.residual(theta, 3);
     assert_eq!(r.dim(), 18);
     assert!(r.len > 5, "a transport and a pour: {r:?}");

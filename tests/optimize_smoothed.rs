@@ -4,6 +4,7 @@
 
 #![cfg(feature = "lab")]
 
+use powderlab::skills::Theta;
 use std::process::Command;
 
 const SCENE: &str = concat!(
@@ -64,7 +65,7 @@ fn a_repacked_rollout_moves_the_powder_a_fraction_of_a_spacing_and_is_reproducib
     let scene = powderlab::scene::Scene::load(SCENE).unwrap();
     let spacing = scene.particle_spacing(&scene.bodies[0]);
     let p = Problem::new(scene, 1 << 30).unwrap();
-    let theta = [0.1, -0.2, 0.3, 0.0, 0.5];
+    let theta = Theta([0.1, -0.2, 0.3, 0.0, 0.5]);
     let x = |sim: &mut powderlab::sim::Simulation| -> Vec<glam::DVec3> {
         sim.body_states().into_iter().flat_map(|b| b.x).collect()
     };

@@ -10,6 +10,7 @@ use powderlab::lab::policy::net::{fit, is_answer, select, train, usable, Policy,
 use powderlab::lab::policy::reinforce::{finetune, ReinforceConfig};
 use powderlab::scene::randomize::Draw;
 use powderlab::scene::Scene;
+use powderlab::skills::Theta;
 use powderlab::util::SplitMix64;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -358,7 +359,7 @@ fn a_gauss_newton_step_lands_on_the_root_of_a_linear_dose() {
     // r(θ) = a·θ − b, L = r²: one step from a point within reach solves r = 0.
     let a = [0.3, -0.2, 0.1, 0.0, 0.4];
     let b = 0.05;
-    let theta = [0.1, 0.0, 0.0, 0.0, 0.0];
+    let theta = Theta([0.1, 0.0, 0.0, 0.0, 0.0]);
     let r = a.iter().zip(&theta).map(|(x, y)| x * y).sum::<f64>() - b;
     let g: [f64; 5] = std::array::from_fn(|i| 2.0 * r * a[i]);
     let next = gauss_newton(theta, r * r, g);

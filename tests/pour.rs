@@ -24,7 +24,7 @@ const POUR_GRAINS: f64 = 2.0;
 const SHED_FRACTION: f64 = 0.05;
 
 /// `policy_dosing.ron` as written (its base draw), and the family's Θ at scoop depth `s`.
-fn problem_at(s: f64) -> (Problem, [f64; 5]) {
+fn problem_at(s: f64) -> (Problem, powderlab::skills::Theta) {
     let base = Scene::load(common::scene_path("policy_dosing.ron")).unwrap();
     let d = spec_of(&base).unwrap().base(&base);
     let (problem, _) = problem_of(&base, &d).unwrap();

@@ -4,13 +4,14 @@
 
 use powderlab::rollout::{self, Request};
 use powderlab::scene::Scene;
+use powderlab::skills::Theta;
 
 #[cfg(feature = "lab")]
 #[test]
 fn rollout_gives_the_optimisers_loss_indicator_and_gradient() {
     use powderlab::lab::optim::problem::Problem;
     let scene = Scene::load("tests/scenes/tiny_transport.ron").unwrap();
-    let theta = [0.1, -0.4, 0.5, -0.2, 0.6];
+    let theta = Theta([0.1, -0.4, 0.5, -0.2, 0.6]);
     let problem = Problem::new(scene.clone(), 1 << 30).unwrap();
     let expected = problem.evaluate(theta, true, false).unwrap();
     for threads in [1, 2] {
@@ -67,7 +68,7 @@ fn controls_replace_the_tool_and_errors_name_the_field() {
     let e = rollout::run(
         &scene,
         &Request {
-            theta: Some([1.5, 0.0, 0.0, 0.0, 0.0]),
+            theta: Some(Theta([1.5, 0.0, 0.0, 0.0, 0.0])),
             ..Default::default()
         },
     )

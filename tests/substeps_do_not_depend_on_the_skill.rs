@@ -6,6 +6,7 @@
 #![cfg(feature = "lab")]
 
 use powderlab::lab::optim::problem::Problem;
+use powderlab::skills::Theta;
 use powderlab::util::SplitMix64;
 
 mod common;
@@ -18,9 +19,16 @@ fn every_skill_keeps_the_scene_substeps() {
     let scene = common::load("powder_transport.ron");
     let problem = Problem::new(scene.clone(), 1 << 30).unwrap();
     let mut rng = SplitMix64(5);
-    let corners =
-        (0..32).map(|m: u32| std::array::from_fn(|k| if m >> k & 1 == 1 { 1.0 } else { -1.0 }));
-    let random = (0..SAMPLES).map(|_| std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0)));
+    let corners = (0..32).map(|m: u32| {
+        Theta(std::array::from_fn(|k| {
+            if m >> k & 1 == 1 {
+                1.0
+            } else {
+                -1.0
+            }
+        }))
+    });
+    let random = (0..SAMPLES).map(|_| Theta(std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))));
     for theta in corners.chain(random) {
         let sim = problem.simulation(theta, true).unwrap();
         assert_eq!(

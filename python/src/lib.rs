@@ -15,6 +15,7 @@ use powderlab::error::SceneError as RsSceneError;
 use powderlab::rollout::{self as rs_rollout, Request};
 use powderlab::scene::{ColliderKindSpec, ControlSpec, Scene as RsScene};
 use powderlab::sim::Simulation as RsSimulation;
+use powderlab::skills::Theta;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
@@ -183,7 +184,7 @@ impl Scene {
     /// A copy with the skill tool's Θ replaced (five values in [-1, 1]).
     fn with_theta(&self, theta: [f64; 5]) -> PyResult<Scene> {
         let req = Request {
-            theta: Some(theta),
+            theta: Some(Theta(theta)),
             ..Default::default()
         };
         let inner = rs_rollout::edited(&self.inner, &req).map_err(scene_err)?;
@@ -298,7 +299,7 @@ fn rollout<'py>(
     tape_budget_mb: Option<usize>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let req = Request {
-        theta,
+        theta: theta.map(Theta),
         controls: controls.map(|c| (tool, c)),
         steps,
         loss,

@@ -5,6 +5,7 @@ use powderlab::lab::demo::{self, fit::FitOptions, make::MakeOptions};
 use powderlab::lab::render::{self, camera, Camera};
 use powderlab::scene::Scene;
 use powderlab::sim::{SimOptions, Simulation};
+use powderlab::skills::Theta;
 use serde_json::json;
 use std::path::PathBuf;
 
@@ -109,7 +110,7 @@ fn make(a: MakeArgs) -> Result<()> {
             bail!("{flag} {v}: expected a non-negative number");
         }
     }
-    let Ok(theta) = <[f64; 5]>::try_from(a.theta.as_slice()) else {
+    let Ok(theta) = <[f64; 5]>::try_from(a.theta.as_slice()).map(Theta) else {
         bail!(
             "--theta {:?}: expected five values in [-1, 1], such as 0.4,-0.3,0.5,-0.6,0.2",
             a.theta

@@ -2,6 +2,7 @@
 //! simulation, and the baselines on the same rollout budget.
 
 use anyhow::{bail, Context, Result};
+use powderlab::skills::Theta;
 use std::path::PathBuf;
 
 /// Optimise the skill parameters of the scene's tool (gradient descent, and the baselines
@@ -89,14 +90,14 @@ pub struct Args {
 }
 
 /// The Θ of a JSON file's "theta" field, or a one-line error naming the file and the field.
-pub fn read_theta(path: &std::path::Path) -> Result<[f64; 5]> {
+pub fn read_theta(path: &std::path::Path) -> Result<Theta> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("{}: cannot read the file", path.display()))?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .map_err(|e| anyhow::anyhow!("{}: not JSON ({e})", path.display()))?;
-    let theta: Option<[f64; 5]> = v["theta"].as_array().and_then(|a| {
+    let theta: Option<Theta> = v["theta"].as_array().and_then(|a| {
         let xs: Vec<f64> = a.iter().filter_map(|x| x.as_f64()).collect();
-        <[f64; 5]>::try_from(xs.as_slice()).ok()
+        <[f64; 5]>::try_from(xs.as_slice()).ok().map(Theta)
     });
     match theta {
         Some(t) if t.iter().all(|x| (-1.0..=1.0).contains(x)) => Ok(t),

@@ -24,6 +24,27 @@ pub struct Page {
     pub results: PathBuf,
 }
 
+/// How long a study runs, and on how many threads.
+#[derive(Args)]
+pub struct Run {
+    /// A seconds-long version of the study (tests and CI).
+    #[arg(long)]
+    pub quick: bool,
+    #[arg(long, value_parser = crate::cli::threads_arg)]
+    pub threads: Option<usize>,
+}
+
+/// The studies that compare methods on paired seeds at equal compute.
+#[derive(Args)]
+pub struct Paired {
+    /// Paired seeds (draws) per task.
+    #[arg(long, default_value_t = 10)]
+    pub seeds: usize,
+    /// Compute per seed and method, in forward rollouts.
+    #[arg(long, default_value_t = 20)]
+    pub budget: usize,
+}
+
 /// The studies, one subcommand each: the one table `powderlab study` dispatches through
 /// (`study::run`).
 #[derive(clap::Subcommand)]
@@ -59,17 +80,14 @@ pub enum Study {
 pub struct ErrorVsTime {
     #[command(flatten)]
     pub common: Common,
+    #[command(flatten)]
+    pub run: Run,
     /// The transport task's scene (default scenes/powder_transport.ron).
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// A seconds-long version of the study (tests and CI).
-    #[arg(long)]
-    pub quick: bool,
     /// Keep the configurations already finished in OUT/results.json.
     #[arg(long)]
     pub resume: bool,
-    #[arg(long, value_parser = crate::cli::threads_arg)]
-    pub threads: Option<usize>,
     /// Run one configuration (JSON) and print its result: the study runs each configuration
     /// in a process of its own, so that its peak memory is its own.
     #[arg(long, hide = true)]
@@ -80,11 +98,8 @@ pub struct ErrorVsTime {
 pub struct Growth {
     #[command(flatten)]
     pub common: Common,
-    /// A seconds-long version of the study (tests and CI).
-    #[arg(long)]
-    pub quick: bool,
-    #[arg(long, value_parser = crate::cli::threads_arg)]
-    pub threads: Option<usize>,
+    #[command(flatten)]
+    pub run: Run,
     /// Run one configuration (JSON) and print its result (in a process of its own).
     #[arg(long, hide = true)]
     pub config: Option<String>,
@@ -94,17 +109,14 @@ pub struct Growth {
 pub struct Landscape {
     #[command(flatten)]
     pub common: Common,
+    #[command(flatten)]
+    pub run: Run,
     /// The skill scene (default scenes/powder_transport.ron).
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// A seconds-long version of the study (tests and CI).
-    #[arg(long)]
-    pub quick: bool,
     /// Quasi-random rollouts to run (default 256; 16 with --quick).
     #[arg(long)]
     pub samples: Option<usize>,
-    #[arg(long, value_parser = crate::cli::threads_arg)]
-    pub threads: Option<usize>,
 }
 
 #[derive(Args)]
@@ -112,17 +124,13 @@ pub struct Optimizers {
     #[command(flatten)]
     pub common: Common,
     #[command(flatten)]
+    pub paired: Paired,
+    #[command(flatten)]
     pub page: Page,
     /// The skill scenes to benchmark (comma separated; default the transport task and the
     /// precise-dosing task).
     #[arg(long, value_delimiter = ',')]
     pub tasks: Vec<PathBuf>,
-    /// Paired seeds per task.
-    #[arg(long, default_value_t = 10)]
-    pub seeds: usize,
-    /// Compute per seed and method, in forward rollouts.
-    #[arg(long, default_value_t = 20)]
-    pub budget: usize,
     /// The methods (comma separated, or all).
     #[arg(long, value_delimiter = ',', default_value = "all")]
     pub method: Vec<String>,
@@ -138,21 +146,20 @@ pub struct Directions {
     #[command(flatten)]
     pub common: Common,
     #[command(flatten)]
+    pub run: Run,
+    #[command(flatten)]
     pub page: Page,
     /// The skill scene (default scenes/powder_transport.ron).
     #[arg(long)]
     pub scene: Option<PathBuf>,
-    /// A seconds-long version of the study (tests and CI).
-    #[arg(long)]
-    pub quick: bool,
-    #[arg(long, value_parser = crate::cli::threads_arg)]
-    pub threads: Option<usize>,
 }
 
 #[derive(Args)]
 pub struct Refine {
     #[command(flatten)]
     pub common: Common,
+    #[command(flatten)]
+    pub paired: Paired,
     #[command(flatten)]
     pub page: Page,
     /// The skill scene (default scenes/precise_dosing.ron).
@@ -165,12 +172,6 @@ pub struct Refine {
     /// than the target (the target's unit), instead of Θ_init(k).
     #[arg(long)]
     pub over: Option<f64>,
-    /// Paired seeds.
-    #[arg(long, default_value_t = 10)]
-    pub seeds: usize,
-    /// Compute per seed and method, in forward rollouts.
-    #[arg(long, default_value_t = 20)]
-    pub budget: usize,
     #[arg(long, value_parser = crate::cli::threads_arg)]
     pub threads: Option<usize>,
 }
@@ -180,13 +181,9 @@ pub struct Calibration {
     #[command(flatten)]
     pub common: Common,
     #[command(flatten)]
+    pub paired: Paired,
+    #[command(flatten)]
     pub page: Page,
-    /// Paired (true value, start) draws per case.
-    #[arg(long, default_value_t = 10)]
-    pub seeds: usize,
-    /// Compute per pair and method, in forward rollouts.
-    #[arg(long, default_value_t = 20)]
-    pub budget: usize,
     #[arg(long, value_parser = crate::cli::threads_arg)]
     pub threads: Option<usize>,
 }

@@ -83,7 +83,7 @@ fn error_vs_time_cmd(a: args::ErrorVsTime) -> Result<()> {
         .scene
         .clone()
         .unwrap_or_else(|| PathBuf::from("scenes/powder_transport.ron"));
-    let plan = study::plan(a.quick, &scene, a.threads)?;
+    let plan = study::plan(a.run.quick, &scene, a.run.threads)?;
     // Fail fast on a scene the transport configurations cannot use.
     if let Some(cfg) = plan.iter().find(|c| c.case == study::Case::PowderTransport) {
         powderlab::lab::optim::problem::Problem::new(
@@ -160,7 +160,7 @@ fn growth_cmd(a: args::Growth) -> Result<()> {
         );
         return Ok(());
     }
-    let plan = growth::plan(a.quick, a.threads.or(Some(2)));
+    let plan = growth::plan(a.run.quick, a.run.threads.or(Some(2)));
     for cfg in &plan {
         growth::growth_scene(&base, cfg)?;
     }

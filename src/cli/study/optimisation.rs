@@ -4,6 +4,7 @@
 use super::{args, print_page, skill_problem};
 use anyhow::{bail, Context, Result};
 use powderlab::lab::study;
+use powderlab::skills::Theta;
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -15,7 +16,7 @@ pub(super) fn landscape_cmd(a: args::Landscape) -> Result<()> {
         .scene
         .clone()
         .unwrap_or_else(|| PathBuf::from("scenes/powder_transport.ron"));
-    let n = a.samples.unwrap_or(if a.quick { 16 } else { 256 });
+    let n = a.samples.unwrap_or(if a.run.quick { 16 } else { 256 });
     if n < 2 {
         bail!("study landscape: --samples {n}: expected at least 2");
     }
@@ -25,7 +26,7 @@ pub(super) fn landscape_cmd(a: args::Landscape) -> Result<()> {
         powderlab::scene::TargetValue::Particles(_) => "particles",
         powderlab::scene::TargetValue::Grams(_) => "g",
     };
-    let threads = a.threads.unwrap_or(problem.scene.simulation.threads);
+    let threads = a.run.threads.unwrap_or(problem.scene.simulation.threads);
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build_global()
@@ -97,8 +98,8 @@ pub(super) fn optimizers_cmd(a: args::Optimizers) -> Result<()> {
             .map(|t| t.display().to_string())
             .collect::<Vec<_>>()
             .join(","),
-        a.seeds,
-        a.budget,
+        a.paired.seeds,
+        a.paired.budget,
         methods
             .iter()
             .map(|m| m.name())
@@ -109,13 +110,13 @@ pub(super) fn optimizers_cmd(a: args::Optimizers) -> Result<()> {
         command.push_str(&format!(" --page {}", a.name));
     }
     for t in &tasks {
-        super::super::announce_work(t, (a.seeds * a.budget * methods.len()) as f64)?;
+        super::super::announce_work(t, (a.paired.seeds * a.paired.budget * methods.len()) as f64)?;
     }
     let start = Instant::now();
     let md = study::optimizers::run(&study::optimizers::StudyOptions {
         tasks,
-        seeds: a.seeds,
-        budget: a.budget,
+        seeds: a.paired.seeds,
+        budget: a.paired.budget,
         methods,
         out: a.common.out.join("optimizers"),
         results: a.page.results.clone(),
@@ -137,16 +138,17 @@ pub(super) fn optimizers_cmd(a: args::Optimizers) -> Result<()> {
 /// `powderlab study directions`: each loss's gradient against the dose error's secants.
 pub(super) fn directions_cmd(a: args::Directions) -> Result<()> {
     use powderlab::lab::study::directions;
-    let (scene, problem, unit) = skill_problem(&a.scene, a.threads, "scenes/powder_transport.ron")?;
+    let (scene, problem, unit) =
+        skill_problem(&a.scene, a.run.threads, "scenes/powder_transport.ron")?;
     let landscape = a.page.results.join("landscape.csv");
     let mut points = directions::default_points(Some(&landscape));
-    let steps: Vec<f64> = if a.quick {
+    let steps: Vec<f64> = if a.run.quick {
         points.truncate(2);
         vec![0.1]
     } else {
         vec![0.1, 0.05]
     };
-    let (labels, thetas): (Vec<String>, Vec<[f64; 5]>) = points.into_iter().unzip();
+    let (labels, thetas): (Vec<String>, Vec<Theta>) = points.into_iter().unzip();
     // Three gradient rollouts, one at Θ and two per parameter and step.
     let n = thetas.len() * (4 + 10 * steps.len());
     let pb = super::super::bar(n as u64, a.common.json);
@@ -158,7 +160,7 @@ pub(super) fn directions_cmd(a: args::Directions) -> Result<()> {
     let command = format!(
         "powderlab study directions --scene {}{}",
         scene.display(),
-        if a.quick { " --quick" } else { "" }
+        if a.run.quick { " --quick" } else { "" }
     );
     let md = directions::report(&rows, &steps, &command, unit);
     directions::write(&rows, &md, &a.page.results)?;
@@ -177,24 +179,30 @@ pub(super) fn directions_cmd(a: args::Directions) -> Result<()> {
 /// and random search at equal compute.
 pub(super) fn refine_cmd(a: args::Refine) -> Result<()> {
     use powderlab::lab::study::refine;
-    if a.knots.is_empty() || a.knots.contains(&0) || a.seeds == 0 || a.budget == 0 {
+    if a.knots.is_empty() || a.knots.contains(&0) || a.paired.seeds == 0 || a.paired.budget == 0 {
         bail!("study refine: --knots, --seeds and --budget must be at least 1");
     }
     let (scene, problem, unit) = skill_problem(&a.scene, a.threads, "scenes/precise_dosing.ron")?;
     // At most: trust's rollouts depend on its accepted steps, and never pass the budget.
-    let per_seed = 5 * a.budget + refine::gradient_rollouts(a.budget);
-    super::super::announce_work(&scene, (a.knots.len() * a.seeds * 6 * a.budget) as f64)?;
-    let pb = super::super::bar((a.knots.len() * a.seeds * per_seed) as u64, a.common.json);
+    let per_seed = 5 * a.paired.budget + refine::gradient_rollouts(a.paired.budget);
+    super::super::announce_work(
+        &scene,
+        (a.knots.len() * a.paired.seeds * 6 * a.paired.budget) as f64,
+    )?;
+    let pb = super::super::bar(
+        (a.knots.len() * a.paired.seeds * per_seed) as u64,
+        a.common.json,
+    );
     let pb2 = pb.clone();
     let store = refine::Store::open(&a.common.out.join("refine"), Box::new(move || pb2.inc(1)))?;
     let start = Instant::now();
     if a.over.is_some_and(|g| !(g.is_finite() && g >= 0.0)) {
         bail!("study refine: --over must be a finite amount of at least 0 (the target's unit)");
     }
-    let (starts, screen) = refine::starts(&store, &problem, a.over, a.seeds)?;
+    let (starts, screen) = refine::starts(&store, &problem, a.over, a.paired.seeds)?;
     // The screening's rollouts ran first (their number is known only now): the methods' follow.
-    pb.set_length(pb.position() + (a.knots.len() * a.seeds * per_seed) as u64);
-    let cells = refine::run(&problem, &a.knots, &starts, a.budget, &store)?;
+    pb.set_length(pb.position() + (a.knots.len() * a.paired.seeds * per_seed) as u64);
+    let cells = refine::run(&problem, &a.knots, &starts, a.paired.budget, &store)?;
     pb.finish_and_clear();
     let over = a.over.map_or(String::new(), |g| format!(" --over {g}"));
     let command = format!(
@@ -205,10 +213,10 @@ pub(super) fn refine_cmd(a: args::Refine) -> Result<()> {
             .map(|k| k.to_string())
             .collect::<Vec<_>>()
             .join(","),
-        a.seeds,
-        a.budget
+        a.paired.seeds,
+        a.paired.budget
     );
-    let md = refine::report(&cells, &command, unit, a.budget, screen);
+    let md = refine::report(&cells, &command, unit, a.paired.budget, screen);
     powderlab::util::create_output_dir(&a.page.results, "--results")?;
     powderlab::util::write_atomic(&a.page.results.join("refinement.md"), md.as_bytes())?;
     print_page(

@@ -316,11 +316,11 @@ const POUR_MINUTES: f64 = 11.0;
 /// observations, Adam and BFGS on the adjoint against CMA-ES at equal compute.
 pub(super) fn calibration_cmd(a: args::Calibration) -> Result<()> {
     use powderlab::lab::study::calibration;
-    if a.seeds == 0 || a.budget == 0 {
+    if a.paired.seeds == 0 || a.paired.budget == 0 {
         bail!("study calibration: --seeds and --budget must be at least 1");
     }
-    let budget = a.budget as f64;
-    let runs = calibration::CASES.len() * 5 * a.seeds * calibration::METHODS.len();
+    let budget = a.paired.budget as f64;
+    let runs = calibration::CASES.len() * 5 * a.paired.seeds * calibration::METHODS.len();
     // The pairs, the joint fit and its curvature, and the grain sweep's gradient rollouts.
     let total = runs as f64 * budget + 2.0 * budget + 6.0 * 3.4 + calibration::GRAIN.3 as f64 * 3.4;
     for case in &calibration::CASES {
@@ -332,7 +332,7 @@ pub(super) fn calibration_cmd(a: args::Calibration) -> Result<()> {
     // The layered bed: its pairs (and each pair's rollout at the truth) and its curvature.
     let layers = {
         use calibration::layers as l;
-        let pairs = (l::PAIRS_PER_SEED * a.seeds) as f64;
+        let pairs = (l::PAIRS_PER_SEED * a.paired.seeds) as f64;
         let k = l::LAYERS as f64;
         pairs * l::METHODS.len() as f64 * (l::BUDGET_FACTOR * budget + 1.0) + 1.0 + 2.0 * k * k
     };
@@ -354,7 +354,7 @@ pub(super) fn calibration_cmd(a: args::Calibration) -> Result<()> {
     // Each rollout runs on one thread; the pairs run side by side.
     let outcome = calibration::run(
         &a.common.out.join("calibration"),
-        a.seeds,
+        a.paired.seeds,
         budget,
         Some(1),
         &progress,
@@ -362,7 +362,7 @@ pub(super) fn calibration_cmd(a: args::Calibration) -> Result<()> {
     pb.finish_and_clear();
     let command = format!(
         "powderlab study calibration --seeds {} --budget {}",
-        a.seeds, a.budget
+        a.paired.seeds, a.paired.budget
     );
     powderlab::util::create_output_dir(&a.page.results, "--results")?;
     let machine = powderlab::lab::study::optimizers::machine();

@@ -18,6 +18,7 @@ use crate::math::pose::Pose;
 use crate::math::sdf::Spoon;
 use crate::rollout::skill_tool;
 use crate::scene::{ControlSpec, Scene};
+use crate::skills::Theta;
 use glam::DVec3;
 
 /// How the fit runs.
@@ -60,7 +61,7 @@ impl Default for FitOptions {
 #[derive(Clone, Debug)]
 pub struct DemoFit {
     pub track: Tracked,
-    pub theta: [f64; 5],
+    pub theta: Theta,
     /// The path loss at Θ (m²).
     pub path_loss: f64,
 }
@@ -243,7 +244,7 @@ pub fn fit_skill(tracked: &Tracked, scene: &Scene, opts: &FitOptions) -> anyhow:
         .collect();
     Ok(fit_theta(
         &demonstrated_skill(sk, &robot, &tracked.spoon),
-        &[sk.theta, [0.0; 5]],
+        &[sk.theta, Theta([0.0; 5])],
         &Scene::collider_pose(tool),
         scene.simulation.dt,
         Scene::tool_bottom(tool),

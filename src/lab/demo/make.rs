@@ -16,6 +16,7 @@ use crate::math::sdf::{Shape, Spoon};
 use crate::rollout::skill_tool;
 use crate::scene::{ControlSpec, Scene};
 use crate::sim::{SimOptions, Simulation};
+use crate::skills::Theta;
 use crate::util::{write_atomic, SplitMix64};
 use glam::{DQuat, DVec3};
 use serde::{Deserialize, Serialize};
@@ -28,7 +29,7 @@ pub const KEY_COLOUR: [u8; 3] = [217, 64, 51];
 /// How the demonstration is made.
 #[derive(Clone, Debug)]
 pub struct MakeOptions {
-    pub theta: [f64; 5],
+    pub theta: Theta,
     pub cameras: Vec<Camera>,
     /// A frame every this many global steps.
     pub every: usize,
@@ -50,7 +51,7 @@ pub struct MakeOptions {
 /// What `truth.json` holds.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Truth {
-    pub theta: [f64; 5],
+    pub theta: Theta,
     /// The demonstrator's spoon: bowl radius, bowl depth, handle length (m).
     #[serde(default)]
     pub spoon: Option<[f64; 3]>,

@@ -15,6 +15,7 @@
 use crate::adjoint::tool_move::left_jacobian;
 use crate::math::pose::{quat_from_rotation_vector, Pose};
 use crate::skills::SkillSpec;
+use crate::skills::Theta;
 use glam::{DMat3, DVec3};
 
 /// A pose as the path loss sees it: its origin and a point `lever` along its local x.
@@ -157,7 +158,7 @@ pub fn align(frames: &[[DVec3; 2]], skill: &[[DVec3; 2]]) -> (f64, Vec<[DVec3; 2
 /// phases' step counts, as everywhere else).
 pub fn path_loss(
     skill: &SkillSpec,
-    theta: [f64; 5],
+    theta: Theta,
     start: &Pose,
     dt: f64,
     bottom_y: f64,
@@ -179,7 +180,7 @@ pub fn path_loss(
 /// What [`fit_theta`] gives.
 #[derive(Clone, Debug)]
 pub struct ThetaFit {
-    pub theta: [f64; 5],
+    pub theta: Theta,
     /// The path loss at Θ (m²).
     pub loss: f64,
 }
@@ -189,7 +190,7 @@ pub struct ThetaFit {
 #[allow(clippy::too_many_arguments)]
 pub fn fit_theta(
     skill: &SkillSpec,
-    starts: &[[f64; 5]],
+    starts: &[Theta],
     start_pose: &Pose,
     dt: f64,
     bottom_y: f64,
@@ -255,7 +256,7 @@ mod tests {
 
     fn track(
         sk: &SkillSpec,
-        theta: [f64; 5],
+        theta: Theta,
         start: &Pose,
         dt: f64,
         bottom: f64,
@@ -279,8 +280,15 @@ mod tests {
     #[test]
     fn path_gradient_matches_central_differences() {
         let (sk, start, dt, bottom, lever) = tiny();
-        let demo = track(&sk, [0.4, -0.3, 0.5, -0.6, 0.2], &start, dt, bottom, lever);
-        let theta = [0.1, 0.2, -0.1, 0.3, -0.2];
+        let demo = track(
+            &sk,
+            Theta([0.4, -0.3, 0.5, -0.6, 0.2]),
+            &start,
+            dt,
+            bottom,
+            lever,
+        );
+        let theta = Theta([0.1, 0.2, -0.1, 0.3, -0.2]);
         let (_, g) = path_loss(&sk, theta, &start, dt, bottom, lever, &demo);
         let eps = 1e-7;
         for k in 0..5 {
@@ -301,9 +309,21 @@ mod tests {
     #[test]
     fn recovers_theta_from_an_exact_track() {
         let (sk, start, dt, bottom, lever) = tiny();
-        for truth in [[0.4, -0.3, 0.5, -0.6, 0.2], [-0.7, 0.6, -0.2, 0.8, -0.5]] {
+        for truth in [
+            Theta([0.4, -0.3, 0.5, -0.6, 0.2]),
+            Theta([-0.7, 0.6, -0.2, 0.8, -0.5]),
+        ] {
             let demo = track(&sk, truth, &start, dt, bottom, lever);
-            let fit = fit_theta(&sk, &[[0.0; 5]], &start, dt, bottom, lever, &demo, 1500);
+            let fit = fit_theta(
+                &sk,
+                &[Theta([0.0; 5])],
+                &start,
+                dt,
+                bottom,
+                lever,
+                &demo,
+                1500,
+            );
             let worst = fit
                 .theta
                 .iter()
@@ -327,7 +347,7 @@ mod frame_rate {
 
     /// The Θ fitted to a hand's exact poses along g(Θ*) at its own pace (`warp`) with a
     /// tremor, filmed every `every` steps.
-    fn fitted(every: usize, warp: f64, tremor: f64) -> ([f64; 5], [f64; 5]) {
+    fn fitted(every: usize, warp: f64, tremor: f64) -> (Theta, Theta) {
         let scene = Scene::load(concat!(
             env!("CARGO_MANIFEST_DIR"),
             "/scenes/powder_transport.ron"
@@ -339,7 +359,7 @@ mod frame_rate {
         };
         let (lever, start) = (tool.shape.bounding_radius(), Scene::collider_pose(tool));
         let (dt, bottom) = (scene.simulation.dt, Scene::tool_bottom(tool));
-        let truth = [0.4, -0.3, 0.5, -0.6, 0.2];
+        let truth = Theta([0.4, -0.3, 0.5, -0.6, 0.2]);
         let (u, _) = SkillSpec {
             theta: truth,
             ..sk.clone()
@@ -351,7 +371,7 @@ mod frame_rate {
             .filter(|k| k % every == 0 || *k == last)
             .map(|k| pose_points(&hand[k], lever))
             .collect();
-        let starts = [sk.theta, [0.0; 5]];
+        let starts = [sk.theta, Theta([0.0; 5])];
         let fit = fit_theta(sk, &starts, &start, dt, bottom, lever, &points, 1500);
         (fit.theta, truth)
     }

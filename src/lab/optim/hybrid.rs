@@ -14,6 +14,7 @@
 //! forward rollouts. The gradient's length is not used (only its direction): on the transport
 //! scene single rollouts return gradients hundreds of times the usual size.
 
+use crate::skills::Theta;
 use serde::{Deserialize, Serialize};
 
 /// The hybrid's settings.
@@ -53,9 +54,9 @@ impl TrustRegion {
 
     /// The trial point `Θ − r·g/‖g‖`, clamped to [−1, 1]⁵; `None` for a zero or non-finite
     /// gradient (no direction to try).
-    pub fn propose(&self, theta: [f64; 5], grad: [f64; 5]) -> Option<[f64; 5]> {
-        let t = self.propose_in(&theta, &grad)?;
-        Some(std::array::from_fn(|k| t[k]))
+    pub fn propose(&self, theta: Theta, grad: [f64; 5]) -> Option<Theta> {
+        let t = self.propose_in(&theta[..], &grad)?;
+        Some(Theta(std::array::from_fn(|k| t[k])))
     }
 
     /// [`Self::propose`] in any dimension: `x − r·g/‖g‖`, clamped to [−1, 1]ⁿ.
@@ -120,16 +121,18 @@ mod tests {
     #[test]
     fn a_trial_steps_the_radius_downhill_and_stays_in_the_box() {
         let tr = TrustRegion { radius: 0.2 };
-        let t = tr.propose([0.0; 5], [3.0, 4.0, 0.0, 0.0, 0.0]).unwrap();
+        let t = tr
+            .propose(Theta([0.0; 5]), [3.0, 4.0, 0.0, 0.0, 0.0])
+            .unwrap();
         assert!((t[0] + 0.12).abs() < 1e-15 && (t[1] + 0.16).abs() < 1e-15);
         let step = t.iter().map(|x| x * x).sum::<f64>().sqrt();
         assert!((step - 0.2).abs() < 1e-15);
         // At the box's edge the step is clamped.
         let edge = tr
-            .propose([-1.0, 0.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0, 0.0])
+            .propose(Theta([-1.0, 0.0, 0.0, 0.0, 0.0]), [1.0, 0.0, 0.0, 0.0, 0.0])
             .unwrap();
         assert_eq!(edge[0], -1.0);
-        assert!(tr.propose([0.0; 5], [0.0; 5]).is_none());
-        assert!(tr.propose([0.0; 5], [f64::NAN; 5]).is_none());
+        assert!(tr.propose(Theta([0.0; 5]), [0.0; 5]).is_none());
+        assert!(tr.propose(Theta([0.0; 5]), [f64::NAN; 5]).is_none());
     }
 }

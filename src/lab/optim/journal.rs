@@ -11,6 +11,7 @@
 
 use super::problem::Outcome;
 use super::Method;
+use crate::skills::Theta;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::path::Path;
@@ -24,7 +25,7 @@ pub struct Record {
     /// The batch the rollout belongs to: the epoch for `grad` and `sac` (one rollout each),
     /// the generation for `cmaes`, the draw for `random`.
     pub batch: usize,
-    pub theta: [f64; 5],
+    pub theta: Theta,
     /// What the rollout gave (its fields sit flat beside the ones above in the JSON line).
     #[serde(flatten)]
     pub outcome: Outcome,
@@ -37,7 +38,7 @@ pub struct Record {
 
 type Key = (Method, usize, usize, [u64; 5]);
 
-fn key(method: Method, seed: usize, batch: usize, theta: &[f64; 5]) -> Key {
+fn key(method: Method, seed: usize, batch: usize, theta: &Theta) -> Key {
     (method, seed, batch, theta.map(f64::to_bits))
 }
 
@@ -80,7 +81,7 @@ impl Journal {
         method: Method,
         seed: usize,
         batch: usize,
-        theta: &[f64; 5],
+        theta: &Theta,
     ) -> Option<Record> {
         let r = self.known.get(&key(method, seed, batch, theta)).cloned();
         if r.is_some() {

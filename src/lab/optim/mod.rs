@@ -55,6 +55,7 @@ mod runner;
 pub mod sac;
 pub mod smoothing;
 
+use crate::skills::Theta;
 use crate::util::{write_atomic, SplitMix64};
 use anyhow::{bail, Context};
 use cma::CmaConfig;
@@ -186,12 +187,12 @@ pub struct Settings {
     /// Start every seed here (Θ_demo from `demo fit`) instead of at [`theta_init`]; the
     /// methods' own randomness still follows the seed.
     #[serde(default)]
-    pub init: Option<[f64; 5]>,
+    pub init: Option<Theta>,
 }
 
 impl Settings {
     /// Where seed `k` starts.
-    pub fn start(&self, k: usize) -> [f64; 5] {
+    pub fn start(&self, k: usize) -> Theta {
         self.init.unwrap_or_else(|| theta_init(k))
     }
 
@@ -277,9 +278,9 @@ pub struct Options {
 }
 
 /// Θ_init of seed `k`: uniform in [−1, 1]⁵.
-pub fn theta_init(k: usize) -> [f64; 5] {
+pub fn theta_init(k: usize) -> Theta {
     let mut rng = SplitMix64(0x7E7A_1A17 + k as u64);
-    std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))
+    Theta(std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0)))
 }
 
 /// The first `n` points of the Owen-scrambled Sobol sequence over `[0, 1]^d` (`sobol_burley`),
@@ -296,10 +297,10 @@ pub fn sobol_unit(n: usize, d: usize, seed: u32) -> Vec<Vec<f64>> {
 }
 
 /// The first `n` points of the Owen-scrambled Sobol sequence over [−1, 1]⁵, scrambled by `seed`.
-pub fn sobol_thetas(n: usize, seed: u32) -> Vec<[f64; 5]> {
+pub fn sobol_thetas(n: usize, seed: u32) -> Vec<Theta> {
     sobol_unit(n, 5, seed)
         .into_iter()
-        .map(|p| std::array::from_fn(|d| 2.0 * p[d] - 1.0))
+        .map(|p| Theta(std::array::from_fn(|d| 2.0 * p[d] - 1.0)))
         .collect()
 }
 

@@ -6,6 +6,7 @@ use crate::error::FieldError;
 use crate::rollout::{Prepared, Request, Rollout, Variant};
 use crate::scene::{ControlSpec, Scene, TargetValue};
 use crate::sim::Simulation;
+use crate::skills::Theta;
 use anyhow::Context;
 
 /// A scene prepared for optimisation: the skill problem over the core's one rollout path
@@ -83,7 +84,7 @@ impl Problem {
     }
 
     /// The Θ written in the scene.
-    pub fn scene_theta(&self) -> [f64; 5] {
+    pub fn scene_theta(&self) -> Theta {
         match &self.scene.colliders[self.tool].control {
             Some(ControlSpec::Skill(sk)) => sk.theta,
             _ => unreachable!("checked in Problem::new"),
@@ -91,7 +92,7 @@ impl Problem {
     }
 
     /// The scene with the tool's Θ replaced.
-    pub fn scene_at(&self, theta: [f64; 5]) -> Scene {
+    pub fn scene_at(&self, theta: Theta) -> Scene {
         let mut s = self.scene.clone();
         if let Some(ControlSpec::Skill(sk)) = &mut s.colliders[self.tool].control {
             sk.theta = theta;
@@ -101,7 +102,7 @@ impl Problem {
 
     /// Builds the simulation of Θ from the scene built once: only the tool's controls are new.
     /// `shared_pool` runs it in the caller's rayon pool.
-    pub fn simulation(&self, theta: [f64; 5], shared_pool: bool) -> anyhow::Result<Simulation> {
+    pub fn simulation(&self, theta: Theta, shared_pool: bool) -> anyhow::Result<Simulation> {
         self.simulation_with(theta, shared_pool, |_, _| {})
     }
 
@@ -109,7 +110,7 @@ impl Problem {
     /// and the steps of each phase) before the world is built.
     pub fn simulation_with(
         &self,
-        theta: [f64; 5],
+        theta: Theta,
         shared_pool: bool,
         edit: impl Fn(&mut Vec<[f64; 6]>, [usize; 6]),
     ) -> anyhow::Result<Simulation> {
@@ -124,7 +125,7 @@ impl Problem {
     }
 
     /// The core's request for a rollout at Θ, with the gradient if asked, on this problem's tape.
-    fn request(&self, theta: [f64; 5], grad: bool) -> Request {
+    fn request(&self, theta: Theta, grad: bool) -> Request {
         Request {
             theta: Some(theta),
             grad,
@@ -134,12 +135,7 @@ impl Problem {
     }
 
     /// One rollout at Θ through the core's one path, with the variant `v`, as an [`Outcome`].
-    fn rollout(
-        &self,
-        theta: [f64; 5],
-        grad: bool,
-        v: &Variant,
-    ) -> anyhow::Result<(Outcome, Rollout)> {
+    fn rollout(&self, theta: Theta, grad: bool, v: &Variant) -> anyhow::Result<(Outcome, Rollout)> {
         let r = self.prepared.run(&self.request(theta, grad), v)?;
         let outcome = Outcome {
             loss: r.loss.expect("the loss is evaluated"),
@@ -156,7 +152,7 @@ impl Problem {
 
     /// The residual of `knots` knots per channel on Θ's transport and pour
     /// ([`crate::lab::optim::refine`]).
-    pub fn residual(&self, theta: [f64; 5], knots: usize) -> crate::lab::optim::refine::Residual {
+    pub fn residual(&self, theta: Theta, knots: usize) -> crate::lab::optim::refine::Residual {
         let scene = self.scene_at(theta);
         let tool = &scene.colliders[self.tool];
         let Some(ControlSpec::Skill(sk)) = &tool.control else {
@@ -179,7 +175,7 @@ impl Problem {
     /// One rollout of Θ with the residual `w` added to its controls, and `∂L/∂w` if asked.
     pub fn evaluate_residual(
         &self,
-        theta: [f64; 5],
+        theta: Theta,
         residual: &crate::lab::optim::refine::Residual,
         w: &[f64],
         with_grad: bool,
@@ -208,7 +204,7 @@ impl Problem {
     /// wall back out at the first substep.
     pub fn simulation_repacked(
         &self,
-        theta: [f64; 5],
+        theta: Theta,
         shared_pool: bool,
         frac: f64,
         seed: u64,
@@ -227,7 +223,7 @@ impl Problem {
     /// ([`Problem::simulation_repacked`]).
     pub fn evaluate_repacked(
         &self,
-        theta: [f64; 5],
+        theta: Theta,
         shared_pool: bool,
         frac: f64,
         seed: u64,
@@ -282,7 +278,7 @@ impl Problem {
     /// the task's target mass at the end of the lift and at the end of the transport, each of
     /// weight 1, in a ball of the bowl's radius about the bowl's sphere and a ramp one particle
     /// spacing wide. `None` unless the tool is a spoon.
-    pub fn carry_terms(&self, theta: [f64; 5]) -> Option<Vec<Carry>> {
+    pub fn carry_terms(&self, theta: Theta) -> Option<Vec<Carry>> {
         let scene = self.scene_at(theta);
         let tool = &scene.colliders[self.tool];
         let crate::math::sdf::Shape::Spoon { bowl_radius, .. } = tool.shape else {
@@ -327,7 +323,7 @@ impl Problem {
     /// carry objective's value is returned beside it.
     pub fn evaluate_carry(
         &self,
-        theta: [f64; 5],
+        theta: Theta,
         shared_pool: bool,
     ) -> anyhow::Result<(Outcome, f64)> {
         let terms = self
@@ -346,7 +342,7 @@ impl Problem {
     /// One rollout at Θ (clamped to [−1, 1] by the caller), with the gradient if asked.
     pub fn evaluate(
         &self,
-        theta: [f64; 5],
+        theta: Theta,
         with_grad: bool,
         shared_pool: bool,
     ) -> anyhow::Result<Outcome> {

@@ -303,7 +303,7 @@ mod tests {
             method,
             seed: 0,
             batch,
-            theta: [0.0; 5],
+            theta: crate::skills::Theta([0.0; 5]),
             outcome: Outcome {
                 loss,
                 indicator,

@@ -70,7 +70,7 @@ pub fn curriculum_mask(epoch: usize, switch_epoch: usize) -> [bool; 5] {
 /// The optimiser's state: Θ and the running mean squares.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RmsState {
-    pub theta: [f64; 5],
+    pub theta: Theta,
     pub mean_square: [f64; 5],
 }
 
@@ -84,6 +84,7 @@ pub fn masked_norm(g: &[f64; 5], mask: [bool; 5]) -> f64 {
 }
 
 use crate::lab::stats::median;
+use crate::skills::Theta;
 
 impl RmsProp {
     /// With `clip_median`, `g` scaled down to the median of `history` (the lengths of this
@@ -134,7 +135,7 @@ mod tests {
     fn steps_match_a_hand_computation() {
         let opt = RmsProp::default();
         let mut st = RmsState {
-            theta: [0.1, -0.2, 0.3, 0.4, -0.5],
+            theta: Theta([0.1, -0.2, 0.3, 0.4, -0.5]),
             mean_square: [0.0; 5],
         };
         let g0 = [2.0, -0.5, 1e-3, 7.0, 7.0];
@@ -168,7 +169,7 @@ mod tests {
         }
         let opt = RmsProp::default();
         let mut st = RmsState {
-            theta: [0.0; 5],
+            theta: Theta([0.0; 5]),
             mean_square: [0.0; 5],
         };
         opt.step(&mut st, [1.0; 5], 15);
@@ -190,7 +191,7 @@ mod tests {
             ..Default::default()
         };
         let start = RmsState {
-            theta: [0.1, -0.2, 0.3, 0.4, -0.5],
+            theta: Theta([0.1, -0.2, 0.3, 0.4, -0.5]),
             mean_square: [0.0; 5],
         };
         let g = [3.0, -4.0, 0.0, 50.0, 50.0];
@@ -266,7 +267,7 @@ mod tests {
             ..Default::default()
         };
         let mut st = RmsState {
-            theta: [0.9, -0.9, 0.0, 0.0, 0.0],
+            theta: Theta([0.9, -0.9, 0.0, 0.0, 0.0]),
             mean_square: [0.0; 5],
         };
         opt.step(&mut st, [-1.0, 1.0, 0.0, 0.0, 0.0], 20);

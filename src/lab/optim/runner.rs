@@ -9,6 +9,7 @@ use super::problem::Problem;
 use super::rmsprop::RmsState;
 use super::sac::Sac;
 use super::{method_seed, report, smoothing, sobol_thetas, Method, Settings};
+use crate::skills::Theta;
 use crate::util::{write_atomic, SplitMix64};
 use anyhow::Context;
 use indicatif::ProgressBar;
@@ -86,7 +87,7 @@ impl Runner<'_> {
         method: Method,
         seed: usize,
         batch: usize,
-        theta: [f64; 5],
+        theta: Theta,
         pass: Pass,
     ) -> anyhow::Result<Record> {
         let r = match self.journal.replay(method, seed, batch, &theta) {
@@ -166,16 +167,16 @@ impl Runner<'_> {
         for step in 1..=s.epochs_for(Method::Smoothed) / n {
             // Θ + σξ for every seed and sample, clamped to the box; ξ is recomputed from the
             // clamped point so the zeroth-order estimate uses the Θ that ran.
-            let jobs: Vec<(usize, [f64; 5], [f64; 5])> = states
+            let jobs: Vec<(usize, Theta, [f64; 5])> = states
                 .iter()
                 .zip(&mut rngs)
                 .enumerate()
                 .flat_map(|(k, (st, rng))| {
                     (0..n)
                         .map(|_| {
-                            let t: [f64; 5] = std::array::from_fn(|i| {
+                            let t = Theta(std::array::from_fn(|i| {
                                 (st.theta[i] + sigma * rng.normal()).clamp(-1.0, 1.0)
-                            });
+                            }));
                             let xi = std::array::from_fn(|i| (t[i] - st.theta[i]) / sigma);
                             (k, t, xi)
                         })
@@ -226,14 +227,14 @@ impl Runner<'_> {
 
     pub(super) fn sac(&self, s: &Settings) -> anyhow::Result<()> {
         let mut agents: Vec<Sac> = (0..s.seeds)
-            .map(|k| Sac::new(s.sac, &s.start(k), method_seed(Method::Sac, k)))
+            .map(|k| Sac::new(s.sac, &s.start(k)[..], method_seed(Method::Sac, k)))
             .collect::<candle_core::Result<_>>()?;
         // The temperature and the reward's standardisation, per seed and episode.
         let mut log = String::from("seed,episode,alpha,loss_mean,loss_std\n");
         for episode in 0..s.epochs {
-            let actions: Vec<[f64; 5]> = agents
+            let actions: Vec<Theta> = agents
                 .iter_mut()
-                .map(|a| a.act().map(|v| std::array::from_fn(|i| v[i])))
+                .map(|a| a.act().map(|v| Theta(std::array::from_fn(|i| v[i]))))
                 .collect::<candle_core::Result<_>>()?;
             let recs: Vec<Record> = actions
                 .par_iter()
@@ -243,7 +244,7 @@ impl Runner<'_> {
             agents
                 .par_iter_mut()
                 .zip(recs.par_iter())
-                .try_for_each(|(a, r)| a.observe(&r.theta, r.outcome.loss))?;
+                .try_for_each(|(a, r)| a.observe(&r.theta[..], r.outcome.loss))?;
             for (k, a) in agents.iter().enumerate() {
                 let (alpha, mean, std) = a.stats()?;
                 let _ = writeln!(log, "{k},{},{alpha},{mean},{std}", episode + 1);
@@ -254,14 +255,14 @@ impl Runner<'_> {
     }
 
     pub(super) fn random(&self, s: &Settings) -> anyhow::Result<()> {
-        let jobs: Vec<(usize, usize, [f64; 5])> = (0..s.seeds)
+        let jobs: Vec<(usize, usize, Theta)> = (0..s.seeds)
             .flat_map(|k| {
                 let mut rng = SplitMix64(method_seed(Method::Random, k));
                 (0..s.epochs).map(move |i| {
                     let th = if i == 0 {
                         s.start(k)
                     } else {
-                        std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))
+                        Theta(std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0)))
                     };
                     (k, i, th)
                 })
@@ -285,7 +286,7 @@ impl Runner<'_> {
             .map(|k| {
                 let (gens, failure) = (&gens, &failure);
                 move |x: &cmaes::DVector<f64>| -> f64 {
-                    let th: [f64; 5] = std::array::from_fn(|i| reflect(x[i]));
+                    let th = Theta(std::array::from_fn(|i| reflect(x[i])));
                     let generation = {
                         let mut g = gens[k].lock().expect("lock");
                         if g.1 == 0 {
@@ -345,7 +346,7 @@ impl Runner<'_> {
     /// seed's points (the unused ones are the hybrid's spares) and the rollouts.
     fn global_phase(&self, s: &Settings, method: Method) -> anyhow::Result<GlobalPhase> {
         let global = ((s.hybrid.global * s.epochs as f64).floor() as usize).clamp(1, s.epochs);
-        let points: Vec<Vec<[f64; 5]>> = (0..s.seeds)
+        let points: Vec<Vec<Theta>> = (0..s.seeds)
             .map(|k| {
                 let mut v = vec![s.start(k)];
                 v.extend(sobol_thetas(
@@ -355,7 +356,7 @@ impl Runner<'_> {
                 v
             })
             .collect();
-        let jobs: Vec<(usize, usize, [f64; 5])> = points
+        let jobs: Vec<(usize, usize, Theta)> = points
             .iter()
             .enumerate()
             .flat_map(|(k, p)| {
@@ -393,14 +394,14 @@ impl Runner<'_> {
             let mut rng = SplitMix64(method_seed(method, k));
             let mut batch = global;
             super::line::search(
-                &start.theta,
+                &start.theta[..],
                 Some((f0, start.outcome.loss)),
                 partner.map(|r| (&r.theta[..], r.outcome.indicator)),
                 budget,
                 method == Method::Line,
                 &mut rng,
                 &mut |w, with_grad| {
-                    let theta: [f64; 5] = std::array::from_fn(|i| w[i]);
+                    let theta = Theta(std::array::from_fn(|i| w[i]));
                     let pass = if with_grad {
                         Pass::Gradient
                     } else {
@@ -491,7 +492,7 @@ struct GlobalPhase {
     /// Points run per seed.
     ran: usize,
     /// Every seed's points, the unused ones included.
-    points: Vec<Vec<[f64; 5]>>,
+    points: Vec<Vec<Theta>>,
     found: Vec<Record>,
 }
 

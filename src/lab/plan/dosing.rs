@@ -35,6 +35,7 @@ use crate::math::heightfield::HeightGrid;
 use crate::scene::plan::{DosingPlan, PlanSpec};
 use crate::scene::{ControlSpec, LossSpec, Scene, TargetValue};
 use crate::sim::Simulation;
+use crate::skills::Theta;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -48,7 +49,7 @@ pub struct Scoop {
     pub entry: [f64; 2],
     /// The surface height the skill's descent was measured from (m).
     pub surface: f64,
-    pub theta: [f64; 5],
+    pub theta: Theta,
     /// Powder in the target cup after the scoop (g).
     pub delivered_g: f64,
     /// What this scoop added (g).
@@ -71,7 +72,7 @@ pub struct DoseNode {
     /// Scoops so far.
     pub scoops: usize,
     /// The Θ the next scoop's optimiser starts from.
-    pub theta_hint: [f64; 5],
+    pub theta_hint: Theta,
     /// The node's path from the start (`s` a scoop, `m<k>` a move to entry `k`): the journal's
     /// key.
     pub key: String,
@@ -195,7 +196,7 @@ impl Dosing {
     }
 
     /// The skill's surface height and Θ in the scene.
-    fn skill_settings(&self) -> (f64, [f64; 5]) {
+    fn skill_settings(&self) -> (f64, Theta) {
         match &self.scene.colliders[self.tool].control {
             Some(ControlSpec::Skill(sk)) => (sk.surface_height, sk.theta),
             _ => unreachable!("skill_tool found it"),
@@ -303,9 +304,9 @@ impl Dosing {
         &mut self,
         p: &Problem,
         node: &str,
-        theta: [f64; 5],
+        theta: Theta,
     ) -> anyhow::Result<(f64, f64, Option<Vec<BodyState>>)> {
-        let full = key(node, &theta);
+        let full = key(node, &theta[..]);
         self.rollouts += 1;
         if let Some(e) = self.journal.get(&full) {
             self.particle_substeps += e.particle_substeps;
@@ -340,7 +341,7 @@ impl Dosing {
         &mut self,
         p: &Problem,
         n: &DoseNode,
-        theta: [f64; 5],
+        theta: Theta,
         states: Option<Vec<BodyState>>,
         rollouts: usize,
     ) -> anyhow::Result<DoseNode> {
@@ -406,12 +407,12 @@ impl Dosing {
     }
 
     /// The simulation of the scoop at Θ from `n`, at its first step (for a recording).
-    pub fn scoop_simulation(&self, n: &DoseNode, theta: [f64; 5]) -> anyhow::Result<Simulation> {
+    pub fn scoop_simulation(&self, n: &DoseNode, theta: Theta) -> anyhow::Result<Simulation> {
         self.problem(n)?.simulation(theta, false)
     }
 
     /// One scoop at a given Θ from `n` (the scripted policy).
-    pub fn scoop_at(&mut self, n: &DoseNode, theta: [f64; 5]) -> anyhow::Result<DoseNode> {
+    pub fn scoop_at(&mut self, n: &DoseNode, theta: Theta) -> anyhow::Result<DoseNode> {
         let p = self.problem(n)?;
         let (_, _, states) = self.rollout(&p, &n.key, theta)?;
         self.after(&p, n, theta, states, 1)
@@ -425,8 +426,8 @@ impl Dosing {
         }
         let p = self.problem(n)?;
         let budget = self.plan.scoop_budget;
-        let mut best: Option<(f64, [f64; 5], Option<Vec<BodyState>>)> = None;
-        let mut consider = |l: f64, th: [f64; 5], st: Option<Vec<BodyState>>| {
+        let mut best: Option<(f64, Theta, Option<Vec<BodyState>>)> = None;
+        let mut consider = |l: f64, th: Theta, st: Option<Vec<BodyState>>| {
             if best.as_ref().is_none_or(|b| l < b.0) {
                 best = Some((l, th, st));
             }
@@ -440,7 +441,7 @@ impl Dosing {
             let sigma = CmaConfig::default().sigma0;
             let mut evals = Vec::new();
             run_sequential(x0, sigma, seed, budget - 1, |x| {
-                let th: [f64; 5] = std::array::from_fn(|k| reflect(x[k]));
+                let th = Theta(std::array::from_fn(|k| reflect(x[k])));
                 let (l, _, st) = self.rollout(&p, &n.key, th)?;
                 evals.push((l, th, st));
                 Ok(l)

@@ -23,6 +23,7 @@ use crate::lab::optim::problem::{Outcome, Problem};
 use crate::lab::optim::report::BACKWARD_COST;
 use crate::scene::randomize::{Draw, Randomization};
 use crate::scene::Scene;
+use crate::skills::Theta;
 use crate::util::SplitMix64;
 use anyhow::Context;
 use rayon::prelude::*;
@@ -67,7 +68,7 @@ pub struct Sample {
     pub copy: usize,
     pub draw: Draw,
     pub features: Vec<f64>,
-    pub theta: [f64; 5],
+    pub theta: Theta,
     pub loss: f64,
     /// `target − delivered` (g) at Θ.
     pub indicator: f64,
@@ -118,19 +119,19 @@ pub fn cost(o: &Outcome) -> f64 {
 /// A search's result: its lowest-loss rollout and what the search spent.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Search {
-    pub theta: [f64; 5],
+    pub theta: Theta,
     pub best: Outcome,
     pub rollouts: f64,
     pub particle_substeps: f64,
     /// Every rollout's Θ and outcome, in order.
-    pub trace: Vec<([f64; 5], Outcome)>,
+    pub trace: Vec<(Theta, Outcome)>,
 }
 
 /// Gauss–Newton steps on the dose from `theta` along the knob (see the module's notes): `steps`
 /// gradient rollouts and a last forward one.
-pub fn refine(problem: &Problem, theta: [f64; 5], steps: usize) -> anyhow::Result<Search> {
+pub fn refine(problem: &Problem, theta: Theta, steps: usize) -> anyhow::Result<Search> {
     let mut t = theta;
-    let mut best: Option<([f64; 5], Outcome)> = None;
+    let mut best: Option<(Theta, Outcome)> = None;
     let (mut rollouts, mut spent) = (0.0, 0.0);
     let mut trace = Vec::new();
     for s in 0..=steps {
@@ -162,7 +163,7 @@ pub fn refine(problem: &Problem, theta: [f64; 5], steps: usize) -> anyhow::Resul
 }
 
 /// `θ − 2L ∇L/|∇L|²`, at most [`AUGMENT_STEP`] long, kept in the box.
-pub fn gauss_newton(theta: [f64; 5], loss: f64, g: [f64; 5]) -> [f64; 5] {
+pub fn gauss_newton(theta: Theta, loss: f64, g: [f64; 5]) -> Theta {
     let n2: f64 = g.iter().map(|v| v * v).sum();
     if !(n2 > 0.0 && n2.is_finite()) {
         return theta;
@@ -172,7 +173,7 @@ pub fn gauss_newton(theta: [f64; 5], loss: f64, g: [f64; 5]) -> [f64; 5] {
     if len > AUGMENT_STEP {
         d.iter_mut().for_each(|v| *v *= AUGMENT_STEP / len);
     }
-    std::array::from_fn(|i| (theta[i] + d[i]).clamp(-1.0, 1.0))
+    Theta(std::array::from_fn(|i| (theta[i] + d[i]).clamp(-1.0, 1.0)))
 }
 
 /// The problem of scene `d` drawn from `base`, and its features.
@@ -192,7 +193,7 @@ pub fn hindsight(
     problem: &Problem,
     (scene, copy): (usize, usize),
     d: &Draw,
-    rollouts: &[([f64; 5], Outcome)],
+    rollouts: &[(Theta, Outcome)],
 ) -> Vec<Sample> {
     let (lo, hi) = spec.target_g.unwrap_or((d.target_g, d.target_g));
     let x = problem.initial_positions();
@@ -230,7 +231,7 @@ pub fn scene_samples(base: &Scene, cfg: &Config, k: usize) -> anyhow::Result<Vec
     let (problem, f) = problem_of(base, &d)?;
     let trace = knob::search(&problem, &d, cfg.budget)?;
     let (s_star, best) = knob::best(&trace).context("the search ran no rollout")?;
-    let rollouts: Vec<([f64; 5], Outcome)> = trace
+    let rollouts: Vec<(Theta, Outcome)> = trace
         .iter()
         .map(|(s, o)| (knob::family(&problem, &d, *s), o.clone()))
         .collect();
@@ -489,7 +490,7 @@ pub fn read(path: &Path) -> anyhow::Result<Vec<Sample>> {
                 packing_seed: ((ps[i][0] as u64) << 32) | ps[i][1] as u64,
             },
             features: f[i].clone(),
-            theta: std::array::from_fn(|j| th[i][j]),
+            theta: Theta(std::array::from_fn(|j| th[i][j])),
             loss: loss[i],
             indicator: ind[i],
             start_loss: sl[i],

@@ -23,6 +23,7 @@ use crate::lab::optim::line::{self, Budget, Probe};
 use crate::lab::optim::problem::{Outcome, Problem};
 use crate::scene::randomize::Draw;
 use crate::scene::Scene;
+use crate::skills::Theta;
 use crate::util::SplitMix64;
 use anyhow::Context;
 use rayon::prelude::*;
@@ -50,7 +51,7 @@ pub const METHODS: [&str; 7] = [
 pub struct Trial {
     pub method: String,
     /// The Θ scored (the search's lowest-loss rollout).
-    pub theta: [f64; 5],
+    pub theta: Theta,
     pub loss: f64,
     /// `target − delivered` (g).
     pub indicator: f64,
@@ -102,7 +103,7 @@ impl EvalConfig {
 fn single(
     problem: &crate::lab::optim::problem::Problem,
     method: &str,
-    theta: [f64; 5],
+    theta: Theta,
 ) -> anyhow::Result<Trial> {
     let o = problem.evaluate(theta, false, true)?;
     Ok(Trial {
@@ -123,25 +124,23 @@ fn single(
 /// backward pass counted at its cost) is spent. With `global` = 0 the search starts at `x0`.
 pub fn line_optimise(
     problem: &Problem,
-    x0: [f64; 5],
+    x0: Theta,
     global: usize,
     budget: usize,
     seed: u64,
 ) -> anyhow::Result<Search> {
-    let mut trace: Vec<([f64; 5], Outcome)> = Vec::new();
-    let run = |theta: [f64; 5],
-               grad: bool,
-               trace: &mut Vec<([f64; 5], Outcome)>|
-     -> anyhow::Result<Probe> {
-        let o = problem.evaluate(theta, grad, true)?;
-        let p = Probe {
-            indicator: o.indicator,
-            loss: o.loss,
-            grad: o.grad.map(|g| g.to_vec()),
+    let mut trace: Vec<(Theta, Outcome)> = Vec::new();
+    let run =
+        |theta: Theta, grad: bool, trace: &mut Vec<(Theta, Outcome)>| -> anyhow::Result<Probe> {
+            let o = problem.evaluate(theta, grad, true)?;
+            let p = Probe {
+                indicator: o.indicator,
+                loss: o.loss,
+                grad: o.grad.map(|g| g.to_vec()),
+            };
+            trace.push((theta, o));
+            Ok(p)
         };
-        trace.push((theta, o));
-        Ok(p)
-    };
     let mut points = vec![x0];
     points.extend(crate::lab::optim::sobol_thetas(
         global.saturating_sub(1),
@@ -150,7 +149,7 @@ pub fn line_optimise(
     for t in points.iter().take(global) {
         run(*t, false, &mut trace)?;
     }
-    let lowest = |it: &mut dyn Iterator<Item = &([f64; 5], Outcome)>| {
+    let lowest = |it: &mut dyn Iterator<Item = &(Theta, Outcome)>| {
         it.min_by(|a, b| a.1.loss.total_cmp(&b.1.loss)).cloned()
     };
     let (start, known, partner) = match lowest(&mut trace.iter()) {
@@ -164,13 +163,13 @@ pub fn line_optimise(
     };
     let mut rng = SplitMix64(seed);
     line::search(
-        &start,
+        &start[..],
         known,
         partner.as_ref().map(|(x, f)| (&x[..], *f)),
         Budget::restarting(budget.saturating_sub(global) as f64),
         true,
         &mut rng,
-        &mut |w, grad| run(std::array::from_fn(|i| w[i]), grad, &mut trace),
+        &mut |w, grad| run(Theta(std::array::from_fn(|i| w[i])), grad, &mut trace),
     )?;
     let (theta, best) = lowest(&mut trace.iter()).context("line ran no rollout")?;
     let rollouts = trace.iter().map(|(_, o)| forward_equivalents(o)).sum();
@@ -264,7 +263,7 @@ pub fn run(
                         single(
                             &problem,
                             "random",
-                            std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0)),
+                            Theta(std::array::from_fn(|_| rng.uniform_in(-1.0, 1.0))),
                         )
                     },
                 )?,

@@ -26,13 +26,14 @@ use crate::lab::optim::problem::{Outcome, Problem};
 use crate::lab::optim::report::BACKWARD_COST;
 use crate::scene::randomize::Draw;
 use crate::scene::ControlSpec;
+use crate::skills::Theta;
 use crate::util::SplitMix64;
 
 /// Θ's component that is the knob: the scoop depth.
 pub const KNOB: usize = 0;
 /// The family's other components (normalised): scoop angle 34°, lift height 60 mm, pour angle
 /// 127.5° (in the randomised scene's ranges). The transport distance (component 3) is the scene's.
-pub const CANONICAL: [f64; 5] = [0.0, 0.2, 0.0, 0.0, 0.5];
+pub const CANONICAL: Theta = Theta([0.0, 0.2, 0.0, 0.0, 0.5]);
 
 /// The normalised transport distance that carries the spoon over the target cup: the cup
 /// distance mapped into the skill's range, clamped into the box.
@@ -47,7 +48,7 @@ pub fn transport(problem: &Problem, d: &Draw) -> f64 {
 }
 
 /// The family's Θ at scoop depth `s` on scene `d`.
-pub fn family(problem: &Problem, d: &Draw, s: f64) -> [f64; 5] {
+pub fn family(problem: &Problem, d: &Draw, s: f64) -> Theta {
     let mut t = CANONICAL;
     t[KNOB] = s.clamp(-1.0, 1.0);
     t[3] = transport(problem, d);

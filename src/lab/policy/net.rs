@@ -23,6 +23,7 @@ use super::knob::KNOB;
 use crate::lab::optim::mlp::Mlp;
 use crate::lab::optim::problem::Problem;
 use crate::scene::randomize::Draw;
+use crate::skills::Theta;
 use crate::util::SplitMix64;
 use anyhow::Context;
 use candle_core::{Device, Tensor, Var};
@@ -175,7 +176,7 @@ impl Policy {
 
     /// A dosing policy's Θ on scene `d` (with `features`): the knob family's member at the
     /// network's knob.
-    pub fn theta(&self, problem: &Problem, d: &Draw, features: &[f64]) -> anyhow::Result<[f64; 5]> {
+    pub fn theta(&self, problem: &Problem, d: &Draw, features: &[f64]) -> anyhow::Result<Theta> {
         let out = self.act(features)?;
         anyhow::ensure!(
             out.len() == OUTPUTS,

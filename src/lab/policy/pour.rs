@@ -29,6 +29,7 @@ use crate::lab::optim::problem::{Outcome, Problem};
 use crate::math::sdf::Shape;
 use crate::scene::ControlSpec;
 use crate::sim::Simulation;
+use crate::skills::Theta;
 use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
@@ -137,7 +138,7 @@ pub fn held_g(sim: &mut Simulation, tool: usize, reach: f64) -> f64 {
 /// One rollout of Θ whose pour is the gravimetric loop toward `target_g`.
 pub fn rollout(
     problem: &Problem,
-    theta: [f64; 5],
+    theta: Theta,
     target_g: f64,
     g: &Gravimetric,
 ) -> anyhow::Result<(Outcome, PourTrace)> {

@@ -14,6 +14,7 @@ use super::net::Policy;
 use super::reinforce::{finetune, Iteration, ReinforceConfig};
 use crate::scene::randomize::Draw;
 use crate::scene::Scene;
+use crate::skills::Theta;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -39,7 +40,7 @@ pub fn fresh_contexts(base: &Scene, seed: u64, n: usize) -> anyhow::Result<Vec<(
 struct Episode {
     draw: Draw,
     context: usize,
-    theta: [f64; 5],
+    theta: Theta,
     reward: f64,
     particle_substeps: f64,
 }

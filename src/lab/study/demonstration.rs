@@ -14,16 +14,17 @@ use crate::lab::render::{self, Camera};
 use crate::math::pose::Pose;
 use crate::scene::Scene;
 use crate::sim::{SimOptions, Simulation};
+use crate::skills::Theta;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The Θ* of the study: spread over the box, none at a face.
-pub const THETAS: [[f64; 5]; 5] = [
-    [0.4, -0.3, 0.5, -0.6, 0.2],
-    [-0.5, 0.6, -0.2, 0.7, -0.4],
-    [0.0, 0.0, 0.0, 0.0, 0.0],
-    [0.7, 0.3, -0.6, -0.2, 0.6],
-    [-0.3, -0.7, 0.3, 0.4, -0.7],
+pub const THETAS: [Theta; 5] = [
+    Theta([0.4, -0.3, 0.5, -0.6, 0.2]),
+    Theta([-0.5, 0.6, -0.2, 0.7, -0.4]),
+    Theta([0.0, 0.0, 0.0, 0.0, 0.0]),
+    Theta([0.7, 0.3, -0.6, -0.2, 0.6]),
+    Theta([-0.3, -0.7, 0.3, 0.4, -0.7]),
 ];
 
 /// The demonstrators' spoons: the scene's bowl radius, bowl depth and handle length scaled by
@@ -39,8 +40,8 @@ pub const SPOON_SCALES: [[f64; 3]; 5] = [
 /// One fit's outcome.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Row {
-    pub truth: [f64; 5],
-    pub fitted: [f64; 5],
+    pub truth: Theta,
+    pub fitted: Theta,
     /// The demonstrator's spoon and the fitted one: bowl radius, bowl depth, handle length (m).
     pub spoon_truth: [f64; 3],
     pub spoon_fit: [f64; 3],
@@ -186,7 +187,7 @@ fn robot_spoon(scene: &Scene) -> anyhow::Result<crate::math::sdf::Spoon> {
 pub(crate) fn demonstrated(
     scene: &Scene,
     d: &Path,
-    theta: [f64; 5],
+    theta: Theta,
     scale: [f64; 3],
     seed: u64,
     cameras: &[Camera],

@@ -14,6 +14,7 @@ use super::cosine;
 use crate::adjoint::loss::scene_loss;
 use crate::lab::optim::problem::Problem;
 use crate::scene::{LossSpec, TargetValue};
+use crate::skills::Theta;
 use crate::util::write_atomic;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -52,7 +53,7 @@ impl Kind {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Rollout {
     pub kind: Kind,
-    pub theta: [f64; 5],
+    pub theta: Theta,
     /// The dose error (forward) or the loss (gradient kinds).
     pub value: f64,
     #[serde(default)]
@@ -61,12 +62,12 @@ pub struct Rollout {
 
 type Key = (Kind, [u64; 5]);
 
-fn key(kind: Kind, theta: &[f64; 5]) -> Key {
+fn key(kind: Kind, theta: &Theta) -> Key {
     (kind, theta.map(f64::to_bits))
 }
 
 /// The Θ at which the secant of parameter `k` at step `h` is taken: `(Θ⁻, Θ⁺)`, clamped.
-pub fn secant_pair(theta: [f64; 5], k: usize, h: f64) -> ([f64; 5], [f64; 5]) {
+pub fn secant_pair(theta: Theta, k: usize, h: f64) -> (Theta, Theta) {
     let (mut lo, mut hi) = (theta, theta);
     lo[k] = (theta[k] - h).max(-1.0);
     hi[k] = (theta[k] + h).min(1.0);
@@ -76,8 +77,8 @@ pub fn secant_pair(theta: [f64; 5], k: usize, h: f64) -> ([f64; 5], [f64; 5]) {
 /// The points of the test: Θ_init of seeds 0–2 and the first six secant points of the
 /// diagnostics (`gradient_by_region`'s nine), then the three best and three worst Θ by dose
 /// error of a landscape map's `landscape.csv`, if given and readable.
-pub fn default_points(landscape_csv: Option<&Path>) -> Vec<(String, [f64; 5])> {
-    let mut v: Vec<(String, [f64; 5])> = (0..3)
+pub fn default_points(landscape_csv: Option<&Path>) -> Vec<(String, Theta)> {
+    let mut v: Vec<(String, Theta)> = (0..3)
         .map(|k| (format!("seed{k}"), crate::lab::optim::theta_init(k)))
         .chain(
             super::secant_thetas(6)
@@ -90,12 +91,12 @@ pub fn default_points(landscape_csv: Option<&Path>) -> Vec<(String, [f64; 5])> {
         return v;
     };
     // index,theta_d,theta_s,theta_l,theta_t,theta_p,loss,indicator,transported
-    let mut map: Vec<(f64, [f64; 5])> = text
+    let mut map: Vec<(f64, Theta)> = text
         .lines()
         .skip(1)
         .filter_map(|l| {
             let f: Vec<f64> = l.split(',').filter_map(|x| x.parse().ok()).collect();
-            (f.len() >= 8).then(|| (f[7].abs(), std::array::from_fn(|k| f[1 + k])))
+            (f.len() >= 8).then(|| (f[7].abs(), Theta(std::array::from_fn(|k| f[1 + k]))))
         })
         .collect();
     map.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -112,7 +113,7 @@ pub fn default_points(landscape_csv: Option<&Path>) -> Vec<(String, [f64; 5])> {
 }
 
 /// One rollout of `kind` at Θ.
-fn run_one(problem: &Problem, kind: Kind, theta: [f64; 5]) -> anyhow::Result<Rollout> {
+fn run_one(problem: &Problem, kind: Kind, theta: Theta) -> anyhow::Result<Rollout> {
     let (value, grad) = match kind {
         Kind::Forward => (problem.evaluate(theta, false, true)?.indicator.abs(), None),
         Kind::Carry => {
@@ -151,7 +152,7 @@ fn run_one(problem: &Problem, kind: Kind, theta: [f64; 5]) -> anyhow::Result<Rol
 /// called after each new one.
 pub fn run(
     problem: &Problem,
-    points: &[[f64; 5]],
+    points: &[Theta],
     steps: &[f64],
     dir: &Path,
     progress: &(dyn Fn() + Sync),
@@ -164,7 +165,7 @@ pub fn run(
         .into_iter()
         .map(|r| (key(r.kind, &r.theta), r))
         .collect();
-    let mut jobs: Vec<(Kind, [f64; 5])> = Vec::new();
+    let mut jobs: Vec<(Kind, Theta)> = Vec::new();
     for &t in points {
         jobs.extend(LOSSES.iter().map(|&k| (k, t)));
         jobs.push((Kind::Forward, t));
@@ -208,11 +209,11 @@ pub struct Row {
 /// The cosines of every point, loss and step.
 pub fn rows(
     labels: &[String],
-    points: &[[f64; 5]],
+    points: &[Theta],
     steps: &[f64],
     done: &HashMap<Key, Rollout>,
 ) -> anyhow::Result<Vec<Row>> {
-    let get = |k: Kind, t: &[f64; 5]| {
+    let get = |k: Kind, t: &Theta| {
         done.get(&key(k, t))
             .ok_or_else(|| anyhow::anyhow!("rollout {k:?} at {t:?} missing"))
     };
@@ -334,9 +335,9 @@ mod tests {
 
     #[test]
     fn secants_stay_in_the_box() {
-        let (lo, hi) = secant_pair([0.95, 0.0, -1.0, 0.0, 0.0], 0, 0.1);
+        let (lo, hi) = secant_pair(Theta([0.95, 0.0, -1.0, 0.0, 0.0]), 0, 0.1);
         assert_eq!((lo[0], hi[0]), (0.85, 1.0));
-        let (lo, hi) = secant_pair([0.95, 0.0, -1.0, 0.0, 0.0], 2, 0.1);
+        let (lo, hi) = secant_pair(Theta([0.95, 0.0, -1.0, 0.0, 0.0]), 2, 0.1);
         assert_eq!((lo[2], hi[2]), (-1.0, -0.9));
         assert_eq!(lo[0], 0.95);
     }

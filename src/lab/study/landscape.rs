@@ -13,6 +13,7 @@
 
 use crate::lab::optim::problem::{Outcome, Problem};
 pub use crate::lab::optim::sobol_thetas;
+use crate::skills::Theta;
 use crate::util::{write_atomic, SplitMix64};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write;
@@ -25,7 +26,7 @@ pub const BOOTSTRAP_DRAWS: usize = 2000;
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Point {
     pub index: usize,
-    pub theta: [f64; 5],
+    pub theta: Theta,
     pub loss: f64,
     pub indicator: f64,
     pub transported: f64,
@@ -74,7 +75,7 @@ pub fn load(dir: &Path) -> anyhow::Result<Vec<Point>> {
 /// Runs the rollouts of `thetas` not yet in `dir` (in parallel), appending each as it finishes.
 pub fn run(
     problem: &Problem,
-    thetas: &[[f64; 5]],
+    thetas: &[Theta],
     dir: &Path,
     progress: &(dyn Fn() + Sync),
 ) -> anyhow::Result<Vec<Point>> {
@@ -181,7 +182,7 @@ mod tests {
     fn point(index: usize, theta0: f64, loss: f64, indicator: f64) -> Point {
         Point {
             index,
-            theta: [theta0, 0.0, 0.0, 0.0, 0.0],
+            theta: Theta([theta0, 0.0, 0.0, 0.0, 0.0]),
             loss,
             indicator,
             transported: 5.0 - indicator,

@@ -41,6 +41,7 @@ use crate::adjoint::tape::Loss;
 use crate::lab::optim::problem::Problem;
 use crate::lab::validate::{deposit_front, run_collapse, Collapse, COLLAPSE_SLAB_CELLS};
 use crate::scene::Scene;
+use crate::skills::Theta;
 use crate::util::{peak_rss_bytes, write_atomic, SplitMix64};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -211,7 +212,7 @@ pub fn substeps_at(scene: &Scene, dx: f64) -> usize {
 }
 
 /// `θ + s·u`: a point on the line through `θ` along `u`.
-pub fn along(theta: [f64; 5], u: &[f64; 5], s: f64) -> [f64; 5] {
+pub fn along(theta: Theta, u: &[f64; 5], s: f64) -> Theta {
     let mut t = theta;
     t.iter_mut().zip(u).for_each(|(t, u)| *t += s * u);
     t
@@ -220,21 +221,22 @@ pub fn along(theta: [f64; 5], u: &[f64; 5], s: f64) -> [f64; 5] {
 /// The first `n` random Θ at which the diagnostic examples take secants: uniform in
 /// [−0.8, 0.8]⁵ from a fixed generator, so that `gradient_at_scale`'s point `k` and
 /// `gradient_by_region`'s `randK` are the same Θ.
-pub fn secant_thetas(n: usize) -> Vec<[f64; 5]> {
+pub fn secant_thetas(n: usize) -> Vec<Theta> {
     let mut rng = SplitMix64(1234);
     (0..n)
-        .map(|_| std::array::from_fn(|_| rng.uniform_in(-0.8, 0.8)))
+        .map(|_| Theta(std::array::from_fn(|_| rng.uniform_in(-0.8, 0.8))))
         .collect()
 }
 
 /// Θ from the command line of the diagnostic examples: five comma-separated values.
-pub fn parse_theta(s: &str) -> anyhow::Result<[f64; 5]> {
+pub fn parse_theta(s: &str) -> anyhow::Result<Theta> {
     let v = s
         .split(',')
         .map(|x| x.trim().parse::<f64>())
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| anyhow::anyhow!("THETA {s:?}: {e}; give five comma-separated numbers"))?;
-    v.try_into()
+    <[f64; 5]>::try_from(v)
+        .map(Theta)
         .map_err(|v: Vec<f64>| anyhow::anyhow!("THETA {s:?} has {} values; give five", v.len()))
 }
 

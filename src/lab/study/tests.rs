@@ -1,6 +1,7 @@
 //! The study's plan, analysis (errors, Pareto front) and Θ parsing.
 
 use super::*;
+use crate::skills::Theta;
 
 #[test]
 fn pareto_front_keeps_the_undominated_points() {
@@ -22,7 +23,7 @@ fn pareto_front_keeps_the_undominated_points() {
 fn theta_takes_exactly_five_numbers() {
     assert_eq!(
         parse_theta("0.3, 0.2,0,-1,1").unwrap(),
-        [0.3, 0.2, 0.0, -1.0, 1.0]
+        Theta([0.3, 0.2, 0.0, -1.0, 1.0])
     );
     assert!(parse_theta("0.3,0.2,0,-1")
         .unwrap_err()

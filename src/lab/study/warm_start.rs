@@ -22,6 +22,7 @@ use crate::lab::optim::report::curve;
 use crate::lab::optim::{self, sobol_thetas, Method};
 use crate::lab::stats::wilcoxon_less;
 use crate::scene::Scene;
+use crate::skills::Theta;
 use serde::Serialize;
 use std::path::Path;
 
@@ -35,10 +36,10 @@ pub const BUDGET: usize = 10;
 /// The race's outcome.
 #[derive(Clone, Debug, Serialize)]
 pub struct WarmStart {
-    pub expert: [f64; 5],
+    pub expert: Theta,
     /// |dose error| of the expert's skill and of Θ_demo itself, in `unit`.
     pub expert_error: f64,
-    pub demo_theta: [f64; 5],
+    pub demo_theta: Theta,
     pub demo_error: f64,
     /// Per seed, the dose error after [`BUDGET`] rollouts from Θ_demo and from Θ_init.
     pub from_demo: Vec<f64>,
@@ -49,7 +50,7 @@ pub struct WarmStart {
 }
 
 /// The |dose error| of Θ on `problem`.
-fn dose_error(problem: &Problem, theta: [f64; 5]) -> anyhow::Result<f64> {
+fn dose_error(problem: &Problem, theta: Theta) -> anyhow::Result<f64> {
     Ok(problem.evaluate(theta, false, true)?.indicator.abs())
 }
 
@@ -59,7 +60,7 @@ fn race(
     problem: &Problem,
     scene: &Scene,
     out: &Path,
-    init: Option<[f64; 5]>,
+    init: Option<Theta>,
 ) -> anyhow::Result<Vec<f64>> {
     let settings = optim::Settings {
         scene_hash: scene.fingerprint(),
@@ -105,13 +106,13 @@ pub fn run(scene: &Scene, dir: &Path, setup: &Setup) -> anyhow::Result<WarmStart
     .to_string();
     // 1. The expert's skill (kept, as the search takes a minute).
     let expert_path = dir.join("expert.json");
-    let (expert, expert_error): ([f64; 5], f64) = match std::fs::read_to_string(&expert_path)
+    let (expert, expert_error): (Theta, f64) = match std::fs::read_to_string(&expert_path)
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok())
     {
         Some(e) => e,
         None => {
-            let mut best = ([0.0; 5], f64::INFINITY);
+            let mut best = (Theta([0.0; 5]), f64::INFINITY);
             for theta in sobol_thetas(EXPERT_POINTS, 7) {
                 let e = dose_error(&problem, theta)?;
                 if e < best.1 {

@@ -32,6 +32,7 @@ pub use crate::lab::optim::report::gradient_rollouts;
 use crate::lab::optim::report::BACKWARD_COST;
 use crate::lab::optim::theta_init;
 use crate::lab::stats::mean;
+use crate::skills::Theta;
 use crate::util::SplitMix64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -95,7 +96,7 @@ impl Store {
     fn get(
         &self,
         problem: &Problem,
-        theta: [f64; 5],
+        theta: Theta,
         knots: usize,
         method: &str,
         seed: usize,
@@ -144,7 +145,7 @@ struct Ctx<'a> {
     p: &'a Problem,
     knots: usize,
     seed: usize,
-    theta: [f64; 5],
+    theta: Theta,
 }
 
 impl Ctx<'_> {
@@ -172,7 +173,7 @@ pub fn starts(
     problem: &Problem,
     over: Option<f64>,
     seeds: usize,
-) -> anyhow::Result<(Vec<[f64; 5]>, Option<Screen>)> {
+) -> anyhow::Result<(Vec<Theta>, Option<Screen>)> {
     let Some(over) = over else {
         return Ok(((0..seeds).map(theta_init).collect(), None));
     };
@@ -414,7 +415,7 @@ pub struct Cell {
 pub fn run(
     problem: &Problem,
     knots: &[usize],
-    starts: &[[f64; 5]],
+    starts: &[Theta],
     budget: usize,
     store: &Store,
 ) -> anyhow::Result<Vec<Cell>> {
