@@ -354,7 +354,8 @@ impl Prepared {
             )
             .map_err(|e| at(e.into()))?;
             if v.terms_only {
-                (Some(final_loss(&mut sim)), Some(g.clone()), Some(g.loss))
+                let terms = g.loss;
+                (Some(final_loss(&mut sim)), Some(g), Some(terms))
             } else {
                 (Some(g.loss), Some(g), None)
             }

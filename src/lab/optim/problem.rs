@@ -93,17 +93,21 @@ impl Problem {
 
     /// The scene with the tool's Θ replaced.
     pub fn scene_at(&self, theta: Theta) -> Scene {
-        let mut s = self.scene.clone();
-        if let Some(ControlSpec::Skill(sk)) = &mut s.colliders[self.tool].control {
-            sk.theta = theta;
-        }
-        s
+        self.prepared
+            .scene_at(theta)
+            .expect("checked in Problem::new: one skill tool")
     }
 
     /// Builds the simulation of Θ from the scene built once: only the tool's controls are new.
     /// `shared_pool` runs it in the caller's rayon pool.
     pub fn simulation(&self, theta: Theta, shared_pool: bool) -> anyhow::Result<Simulation> {
-        self.simulation_with(theta, shared_pool, |_, _| {})
+        self.prepared.simulation(
+            &self.request(theta, false),
+            &Variant {
+                shared_pool,
+                ..Default::default()
+            },
+        )
     }
 
     /// [`Problem::simulation`] with the skill's per-step controls edited by `edit` (given them
