@@ -9,8 +9,6 @@ use powderlab::scene::{ControlSpec, Scene};
 
 mod common;
 
-/// As for the other end-to-end checks through the spoon: 1e-3 in f64 away from contact switches.
-const E2E_REL_TOL: f64 = 1e-3;
 const STEPS: usize = 20;
 /// Central-difference step on Θ (that of `gradient_spoon_scoop.rs`: small enough to stay
 /// between contact switches, large enough above f64 round-off).
@@ -119,11 +117,6 @@ fn carry_loss_gradient_through_the_spoon_matches_central_differences() {
             }
             value(&s)
         };
-        let fd = (edit(EPS) - edit(-EPS)) / (2.0 * EPS);
-        let rel = (fd - ad).abs() / fd.abs().max(ad.abs()).max(1e-12);
-        println!(
-            "dL/dtheta[{k}]: adjoint {ad:.9e}, central difference {fd:.9e}, relative {rel:.2e}"
-        );
-        assert!(rel <= E2E_REL_TOL, "dL/dtheta[{k}]: {rel}");
+        common::check_fd(edit, EPS, ad, &format!("dL/dtheta[{k}]"));
     }
 }

@@ -9,8 +9,6 @@ use powderlab::scene::Scene;
 
 mod common;
 
-/// End-to-end agreement required away from contact switches (issue text: 1e-3 in f64).
-const E2E_REL_TOL: f64 = 1e-3;
 const STEPS: usize = 8;
 
 const SRC: &str = r#"Scene(
@@ -51,12 +49,6 @@ fn with_material(
     s
 }
 
-fn close(fd: f64, ad: f64, what: &str) {
-    let rel = (fd - ad).abs() / fd.abs().max(ad.abs()).max(1e-12);
-    println!("{what}: adjoint {ad:.9e}, central difference {fd:.9e}, relative error {rel:.2e}");
-    assert!(rel <= E2E_REL_TOL, "{what}: {rel}");
-}
-
 #[test]
 fn adjoint_agrees_with_central_differences() {
     let scene = common::parse(SRC).unwrap();
@@ -68,32 +60,23 @@ fn adjoint_agrees_with_central_differences() {
         s.bodies[0].velocity.0 += d;
         loss(&s)
     };
-    let fd = (shift(eps) - shift(-eps)) / (2.0 * eps);
     let ad: f64 = g.v0[0].iter().map(|v| v.x).sum();
-    close(fd, ad, "dL/d(shift v0.x)");
-    let h = 1.0;
-    let fd = (loss(&with_material(&scene, |m| m.youngs_modulus += h))
-        - loss(&with_material(&scene, |m| m.youngs_modulus -= h)))
-        / (2.0 * h);
-    close(
-        fd,
+    common::check_fd(shift, eps, ad, "dL/d(shift v0.x)");
+    common::check_fd(
+        |d| loss(&with_material(&scene, |m| m.youngs_modulus += d)),
+        1.0,
         g.material_gradient(0, "youngs_modulus").unwrap(),
         "dL/dE",
     );
-    let h = 1e-6;
-    let fd = (loss(&with_material(&scene, |m| m.poisson_ratio += h))
-        - loss(&with_material(&scene, |m| m.poisson_ratio -= h)))
-        / (2.0 * h);
-    close(
-        fd,
+    common::check_fd(
+        |d| loss(&with_material(&scene, |m| m.poisson_ratio += d)),
+        1e-6,
         g.material_gradient(0, "poisson_ratio").unwrap(),
         "dL/dnu",
     );
-    let fd = (loss(&with_material(&scene, |m| m.friction_deg += h))
-        - loss(&with_material(&scene, |m| m.friction_deg -= h)))
-        / (2.0 * h);
-    close(
-        fd,
+    common::check_fd(
+        |d| loss(&with_material(&scene, |m| m.friction_deg += d)),
+        1e-6,
         g.material_gradient(0, "friction_deg").unwrap(),
         "dL/dphi",
     );
@@ -195,13 +178,15 @@ fn gradient_through_a_moving_tool() {
     };
     for k in 0..3 {
         let ad: f64 = g.controls[0].1.iter().map(|u| u[k] * dt).sum();
-        close(
-            (with_v(k, eps) - with_v(k, -eps)) / (2.0 * eps),
+        common::check_fd(
+            |d| with_v(k, d),
+            eps,
             ad,
             &format!("dL/d(tool velocity)[{k}]"),
         );
-        close(
-            (with_x(k, eps) - with_x(k, -eps)) / (2.0 * eps),
+        common::check_fd(
+            |d| with_x(k, d),
+            eps,
             g.tool_start[0].1[k],
             &format!("dL/d(tool start)[{k}]"),
         );
@@ -227,22 +212,14 @@ fn gradient_through_a_frictional_floor() {
         s.colliders[0].friction += d;
         loss(&s)
     };
-    close(
-        (with_mu(eps) - with_mu(-eps)) / (2.0 * eps),
-        g.friction[0].1,
-        "dL/dmu(floor)",
-    );
+    common::check_fd(with_mu, eps, g.friction[0].1, "dL/dmu(floor)");
     let shift = |d: f64| {
         let mut s = scene.clone();
         s.bodies[0].velocity.0 += d;
         loss(&s)
     };
     let ad: f64 = g.v0[0].iter().map(|v| v.x).sum();
-    close(
-        (shift(eps) - shift(-eps)) / (2.0 * eps),
-        ad,
-        "dL/d(shift v0.x) with floor friction",
-    );
+    common::check_fd(shift, eps, ad, "dL/d(shift v0.x) with floor friction");
 }
 
 /// Sand poured into a thin-walled cup (2 mm wall on a 1 cm grid: particle collision keeps it
@@ -272,8 +249,9 @@ fn gradient_through_thin_wall_particle_collision() {
     };
     for k in 0..3 {
         let ad: f64 = g.v0[0].iter().map(|v| v[k]).sum();
-        close(
-            (shift(k, eps) - shift(k, -eps)) / (2.0 * eps),
+        common::check_fd(
+            |d| shift(k, d),
+            eps,
             ad,
             &format!("dL/d(shift v0)[{k}] with a thin-walled cup"),
         );
@@ -283,11 +261,9 @@ fn gradient_through_thin_wall_particle_collision() {
         s.colliders[0].friction += d;
         loss(&s)
     };
-    close(
-        (with_mu(eps) - with_mu(-eps)) / (2.0 * eps),
-        g.friction[0].1,
-        "dL/dmu(cup)",
-    );
+    // At 1e-7 the differences at h and h/2 are both round-off and happened to agree to ten
+    // digits, which hid their error; ε^(1/3) ≈ 6e-6 balances truncation and round-off.
+    common::check_fd(with_mu, 1e-6, g.friction[0].1, "dL/dmu(cup)");
 }
 
 /// A box paddle translating and spinning through the sand: gradients with respect to its
@@ -324,6 +300,6 @@ fn gradient_through_a_rotating_tool() {
         } else {
             format!("dL/d(angular)[{}]", k - 3)
         };
-        close((edit(k, eps) - edit(k, -eps)) / (2.0 * eps), ad, &what);
+        common::check_fd(|d| edit(k, d), eps, ad, &what);
     }
 }

@@ -11,9 +11,12 @@ use powderlab::adjoint::tape::{gradient, Tape};
 
 mod common;
 
-/// Growth allowed between horizons one third apart: a gradient that changes by more than three
-/// orders of magnitude over a third of the task has exploded or vanished.
-const MAX_GROWTH: f64 = 1e3;
+/// Growth allowed between horizons one third apart. In free flight `∂x_T/∂v₀ = T`, so the
+/// gradient of a distance loss grows in proportion to the horizon: ×2, then ×1.5 between these
+/// horizons. Granular flow dissipates, so a perturbation's effect grows less and stays once the
+/// powder rests; more than 3× faster (or slower) than that is an explosion (or a vanishing), not
+/// physics. The default scene measures 1.2× and 1.0× (`docs/results/gradients.md`).
+const MAX_GROWTH: f64 = 3.0;
 
 #[test]
 fn gradient_stays_finite_and_bounded_over_the_horizon() {

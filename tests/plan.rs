@@ -263,15 +263,24 @@ fn a_push_plan_moves_powder_into_the_region() {
         .lines()
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
+    let mut shares = Vec::new();
     for r in &rs {
         let strokes = r["strokes"].as_array().unwrap();
         assert!(!strokes.is_empty(), "{r}");
-        // The powder starts 2.5 cm from the region: a stroke that moved none would be broken.
         let last = strokes.last().unwrap()["in_region"].as_f64().unwrap();
-        assert!(last > 0.3, "{r}");
         assert_eq!(r["in_region"].as_f64().unwrap(), last);
         assert_eq!(r["success"].as_bool().unwrap(), last >= 0.9);
         assert_eq!(r["class"], "PullLeft");
+        shares.push(last);
     }
+    // The patch starts 2.5 cm outside the region (none of it in) and is narrower than the
+    // blade: one straight pull through its middle, the scripted stroke, should bring it all
+    // across, so both methods must reach the 90 % success bar. A* starts its stroke search
+    // from the scripted stroke and keeps the best, so it can do no worse.
+    assert!(shares[0] >= 0.9, "scripted: {rs:?}");
+    assert!(
+        shares[1] >= shares[0],
+        "A* below the scripted stroke: {rs:?}"
+    );
     std::fs::remove_dir_all(&d).ok();
 }

@@ -103,3 +103,37 @@ pub fn assert_rrd_has(rrd: &Path, entities: &[&str]) {
         );
     }
 }
+
+/// How far an adjoint derivative may sit from the central difference `D(h)`, in multiples of
+/// that difference's own error estimate `|D(h) − D(h/2)|`. Where truncation (`c·h²`) rules,
+/// `D(h)` is off by 4/3 of the estimate; where round-off rules, `D(h/2)` carries about twice
+/// `D(h)`'s, so the estimate is at least about `D(h)`'s error. 3 covers both with a margin; a
+/// wrong adjoint is off by an amount that does not shrink with `h`, and fails.
+pub const FD_ESTIMATE_FACTOR: f64 = 3.0;
+/// A relative floor for when `D(h)` and `D(h/2)` agree to more digits than the losses' f64
+/// sums over hundreds of particles and steps keep (about 1e-12 of the loss, divided by `h`).
+pub const FD_FLOOR_REL: f64 = 1e-9;
+
+/// Checks an adjoint derivative `ad` of `f` at 0 against central differences of `f` at steps
+/// `h` and `h/2`, with the tolerance the two differences give (above). Prints both figures.
+pub fn check_fd(f: impl Fn(f64) -> f64, h: f64, ad: f64, what: &str) {
+    let d = |h: f64| (f(h) - f(-h)) / (2.0 * h);
+    let (d1, d2) = (d(h), d(h / 2.0));
+    let estimate = (d1 - d2).abs();
+    let scale = d1.abs().max(ad.abs()).max(1e-300);
+    let err = (ad - d1).abs();
+    let allowed = FD_ESTIMATE_FACTOR * estimate + FD_FLOOR_REL * scale;
+    println!(
+        "{what}: adjoint {ad:.9e}, central difference {d1:.9e} (h/2: {d2:.9e}), relative error \
+         {:.2e}, allowed {:.2e}",
+        err / scale,
+        allowed / scale
+    );
+    assert!(
+        err <= allowed,
+        "{what}: adjoint {ad:.9e} against central difference {d1:.9e}: {:.2e} relative, above \
+         {FD_ESTIMATE_FACTOR}× the difference's error estimate {:.2e}",
+        err / scale,
+        estimate / scale
+    );
+}
