@@ -78,7 +78,37 @@ fn a_made_demonstration_is_fitted_back() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("fit.json")).unwrap()).unwrap();
     let theta: Vec<f64> = serde_json::from_value(fit["theta"].clone()).unwrap();
     assert_eq!(theta.len(), 5);
-    assert!(theta.iter().all(|t| (-1.0..=1.0).contains(t)));
+    // Θ's accuracy, in the units the cameras see: the three lengths (scoop depth, lift height,
+    // transport distance) within a pixel, about 2.5 mm at the spoon, and the two angles within
+    // the angle a pixel subtends at the bowl's rim (2.5 mm over its 11 mm radius, 13°). Many
+    // frames of one skill should pin it at least as well as one frame pins the pose.
+    let scene =
+        powderlab::scene::Scene::load(common::test_scene_path("tiny_transport.ron")).unwrap();
+    let Some(powderlab::scene::ControlSpec::Skill(sk)) = &scene.colliders[2].control else {
+        panic!("the tiny scene's spoon is a skill")
+    };
+    let r = &sk.ranges;
+    let truth = [0.4, -0.3, 0.5, -0.6, 0.2];
+    let span = [
+        r.scoop_depth,
+        r.scoop_angle_deg,
+        r.lift_height,
+        r.transport_distance,
+        r.pour_angle_deg,
+    ];
+    const PIXEL_M: f64 = 0.0025;
+    let pixel_deg = (PIXEL_M / 0.011_f64).atan().to_degrees();
+    for k in 0..5 {
+        // value = min + (θ + 1)/2·(max − min)
+        let error = (theta[k] - truth[k]).abs() / 2.0 * (span[k].1 - span[k].0);
+        let bound = if k == 1 || k == 4 { pixel_deg } else { PIXEL_M };
+        assert!(
+            error <= bound,
+            "Θ[{k}] = {} against {}: {error} above {bound} (m or degrees)",
+            theta[k],
+            truth[k]
+        );
+    }
     // 64×48 pixels of about 2.5 mm at the spoon: the median pose within a pixel.
     let median_mm = fit["score"]["pose_mm"][0].as_f64().unwrap();
     assert!(median_mm < 2.5, "median pose error {median_mm} mm");
