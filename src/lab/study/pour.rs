@@ -52,6 +52,13 @@ impl Row {
     pub fn after_turn_g(&self) -> Option<f64> {
         self.poured_at_turn_g.map(|p| self.delivered_g - p)
     }
+    /// The largest mass that left the spoon in one pour step (g): how bursty the outflow is.
+    pub fn largest_step_g(&self) -> f64 {
+        self.trace
+            .windows(2)
+            .map(|w| w[1].1 - w[0].1)
+            .fold(0.0, f64::max)
+    }
 }
 
 /// The study's settings.
@@ -159,9 +166,9 @@ pub fn report(
     );
     let _ = writeln!(md, "Regenerate: `{command}` (about {minutes:.0} min on this machine; it keeps each pour under `--out` and resumes after a kill).  ");
     let _ = writeln!(md, "Machine: {machine}.\n");
-    let _ = writeln!(md, "**Why.** The distilled policy of [policy.md](policy.md) doses open loop: it chooses how deep to scoop, and the spoon empties what it took. What it takes depends on the grains' packing, which no policy sees, so even the per-scene optimiser's own Θ misses by about three grains on a repacked powder. A lab robot meters against a balance instead. This study asks whether the spoon can: after the carry it tilts at the skill's angular speed up to {1}° and at {0}°/s past it, a load cell at the wrist reads what the bowl still holds, and the spoon turns back at the skill's angular speed as soon as the mass that has left it, plus {2} steps of its current outflow, reaches the dose (`powderlab::lab::policy::pour`). The spoon scoops at the family's deepest setting, so it holds the most there is to pour from; a dose above what it holds is poured whole. One rollout, no network.\n",
+    let _ = writeln!(md, "**Why.** The distilled policy of [policy.md](policy.md) doses open loop: it chooses how deep to scoop, and the spoon empties what it took. What it takes depends on the grains' packing, which no policy sees, so even the per-scene optimiser's own Θ misses on a repacked powder (the policy page's *repacked* column says by how much). A lab robot meters against a balance instead. This study asks whether the spoon can: after the carry it tilts at the skill's angular speed up to {1}° and at {0}°/s past it, a load cell at the wrist reads what the bowl still holds, and the spoon turns back at the skill's angular speed as soon as the mass that has left it, plus {2} steps of its current outflow, reaches the dose (`powderlab::lab::policy::pour`). The spoon scoops at the family's deepest setting, so it holds the most there is to pour from; a dose above what it holds is poured whole. One rollout, no network.\n",
         s.pour.speed_deg, s.pour.fast_to_deg, s.pour.lead_steps);
-    let _ = writeln!(md, "**Draws.** The policy page's held-out draws: {} of `scenes/policy_dosing.ron` (dx = 5 mm) and the first {} again from `scenes/policy_dosing_fine.ron`, the same scenes at dx = 2.5 mm (8× the particles).\n", coarse.len(), fine.len());
+    let _ = writeln!(md, "**Draws.** The policy page's held-out draws: {} of `scenes/policy_dosing.ron` (dx = 5 mm) and the first {} again from `scenes/policy_dosing_fine.ron`, the same scenes at dx = 2.5 mm (2³ = 8× the particles at the same particles per cell).\n", coarse.len(), fine.len());
     let _ = writeln!(md, "| pour | draws | dose error (g), mean ± sd | median | within 0.1 g | after the turn (g), mean | rollout (s) | particle-substeps |");
     let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
     let faster_name = format!(
@@ -243,16 +250,26 @@ pub fn report(
             })
             .collect();
         let turned: Vec<&Row> = fine.iter().filter(|r| r.turn_deg.is_some()).collect();
-        let better = wilcoxon_less(&ge, pe).is_some_and(|p| p < crate::lab::stats::ALPHA);
-        let _ = writeln!(md, "**Verdict.** {} At dx = 5 mm the loop misses by {:.3} g against the open-loop policy's {:.3} g. The powder leaves the bowl in bursts, and it keeps leaving after the spoon turns back: {:.3} g on average over the {} pours that turned, far more than the lead of {} steps of the outflow before the turn allows for. The spoon's tilt cannot stop what is already sliding.\n",
-            if better { "The gravimetric pour doses better than the open-loop policy." } else { "**The gravimetric pour does not meter the dose**: it is worse than the open-loop policy, not better." },
-            mean(&ge), mean(pe), mean(&after), after.len(), s.pour.lead_steps);
+        let alpha = crate::lab::stats::ALPHA;
+        let better = wilcoxon_less(&ge, pe).is_some_and(|p| p < alpha);
+        let worse = wilcoxon_less(pe, &ge).is_some_and(|p| p < alpha);
+        let burst = |rows: &[Row]| mean(&rows.iter().map(Row::largest_step_g).collect::<Vec<_>>());
+        let _ = writeln!(md, "**Verdict.** {} At dx = 5 mm the loop misses by {:.3} g against the open-loop policy's {:.3} g. The largest mass to leave the bowl in one step averages {:.3} g over the draws (the doses average {:.3} g), and after the spoon turns back {:.3} g still leaves on average over the {} pours that turned, against a lead of {} steps of the outflow before the turn.\n",
+            if better { "The gravimetric pour doses better than the open-loop policy." } else if worse { "**The gravimetric pour does not meter the dose**: it is worse than the open-loop policy at the 5 % level." } else { "**The gravimetric pour is not shown better than the open-loop policy**, nor worse, at the 5 % level." },
+            mean(&ge), mean(pe), burst(coarse), mean(&coarse.iter().map(|r| r.target_g).collect::<Vec<_>>()), mean(&after), after.len(), s.pour.lead_steps);
         if !fine.is_empty() {
-            let _ = writeln!(md, "At dx = 2.5 mm the outflow is smoother, at {:.0}× the compute. There the deepest scoop holds {:.2} g less than at 5 mm on the same draws on average (up to {:.2} g), so on {} of the {} draws it holds less than the dose and pours it whole; a policy distilled at one resolution would not transfer to the other. On the {} draws on which the spoon turned back, {} g more left after the turn and the dose was missed by {}.\n",
+            let coarse_same: Vec<Row> = fine
+                .iter()
+                .filter_map(|f| coarse.iter().find(|c| c.scene == f.scene).cloned())
+                .collect();
+            let (bf, bc) = (burst(fine), burst(&coarse_same));
+            let _ = writeln!(md, "At dx = 2.5 mm, at {:.0}× the compute, the largest one-step outflow averages {:.3} g against {:.3} g at 5 mm on the same draws ({}). There the deepest scoop holds {:.2} g less than at 5 mm on average (up to {:.2} g), and on {} of the {} draws it holds less than the dose. On the {} draws on which the spoon turned back, {} g more left after the turn and the dose was missed by {}.\n",
                 mean(&fine.iter().map(|r| r.particle_substeps).collect::<Vec<_>>()) / mean(&coarse.iter().map(|r| r.particle_substeps).collect::<Vec<_>>()),
+                bf, bc,
+                if bf < bc { format!("{:.1}× smaller steps", bc / bf) } else { "no smoother".to_string() },
                 mean(&less),
                 less.iter().copied().fold(f64::NEG_INFINITY, f64::max),
-                fine.len() - turned.len(),
+                fine.iter().filter(|r| r.held_g < r.target_g).count(),
                 fine.len(),
                 turned.len(),
                 turned.iter().map(|r| format!("{:.3}", r.after_turn_g().unwrap_or(f64::NAN))).collect::<Vec<_>>().join(" and "),
@@ -262,23 +279,33 @@ pub fn report(
             let fe: Vec<f64> = faster.iter().map(|r| r.error_g().abs()).collect();
             let fa: Vec<f64> = faster.iter().filter_map(Row::after_turn_g).collect();
             let p = wilcoxon_less(&fe, &ge);
-            let helps = p.is_some_and(|p| p < crate::lab::stats::ALPHA);
+            let helps = p.is_some_and(|p| p < alpha);
+            let beats = wilcoxon_less(&fe, pe).is_some_and(|p| p < alpha);
             let _ = writeln!(md, "Turning back {:.0}× faster, at {}°/s instead of the skill's {turn_back_deg}°/s, {}: {:.3} g against {:.3} g on the same draws (p = {} that it is lower), {:.1}× the open-loop policy's error, with {:.3} g still leaving after the turn.\n",
                 s.faster_turn_back_deg / turn_back_deg, s.faster_turn_back_deg,
-                if helps { "helps, but not enough" } else { "does not help" },
+                match (helps, beats) {
+                    (true, true) => "helps, and beats the open-loop policy at the 5 % level",
+                    (true, false) => "helps, but is not shown better than the open-loop policy",
+                    (false, true) => "is not shown to help the plain loop, but beats the open-loop policy",
+                    (false, false) => "is not shown to help",
+                },
                 mean(&fe), mean(&ge), p_text(p), mean(&fe) / mean(pe), mean(&fa));
         }
         if tapped.len() == coarse.len() && !tapped.is_empty() {
             let te: Vec<f64> = tapped.iter().map(|r| r.error_g().abs()).collect();
             let ta: Vec<f64> = tapped.iter().filter_map(Row::after_turn_g).collect();
             let p = wilcoxon_less(&te, &ge);
-            let beats = wilcoxon_less(&te, pe).is_some_and(|p| p < crate::lab::stats::ALPHA);
-            let _ = writeln!(md, "Tapping the spoon instead ({} mm down and up on alternate steps past {}°, the tilt creeping at {}°/s, up to {}°) makes the outflow gradual, and {}: {:.3} g against the plain loop's {:.3} g (p = {} that it is lower), {:.1}× the open-loop policy's error (p = {} that it is lower), with {:.3} g still leaving after the taps stop and the spoon turns back.\n",
+            let beats = wilcoxon_less(&te, pe).is_some_and(|p| p < alpha);
+            let (bt, bc) = (burst(tapped), burst(coarse));
+            let _ = writeln!(md, "Tapping the spoon instead ({} mm down and up on alternate steps past {}°, the tilt creeping at {}°/s, up to {}°) {} (the largest one-step outflow averages {bt:.3} g against the plain loop's {bc:.3} g), and {}: {:.3} g against the plain loop's {:.3} g (p = {} that it is lower), {:.1}× the open-loop policy's error (p = {} that it is lower), with {:.3} g still leaving after the taps stop and the spoon turns back.\n",
                 s.tapped.tap_mm.unwrap_or(0.0), s.tapped.fast_to_deg, s.tapped.speed_deg, s.tapped.max_deg,
-                if beats { "beats the open-loop policy" } else { "still does not meter the dose" },
+                if bt < bc { "makes the outflow more gradual" } else { "does not make the outflow more gradual" },
+                if beats { "beats the open-loop policy at the 5 % level" } else { "is not shown better than the open-loop policy" },
                 mean(&te), mean(&ge), p_text(p), mean(&te) / mean(pe), p_text(wilcoxon_less(&te, pe)), mean(&ta));
         }
-        let _ = writeln!(md, "What would meter it: an actuator whose outflow stops when it stops, such as a screw feeder. With a tilting spoon, feedback that reaches [policy.md](policy.md)'s target has to come between scoops, for instance a second, small scoop that tops up what the balance reads (not built).\n");
+        if !better {
+            let _ = writeln!(md, "What might meter it (not built or tested here): an actuator whose outflow stops when it stops, such as a screw feeder, or feedback between scoops, such as a second, small scoop that tops up what the balance reads.\n");
+        }
     }
     if let Some((c, f)) = shown(coarse, fine) {
         let _ = writeln!(
@@ -292,11 +319,7 @@ pub fn report(
                 .iter()
                 .find(|p| p.1 >= ONSET_G)
                 .map_or(f64::NAN, |p| p.0);
-            let burst = r
-                .trace
-                .windows(2)
-                .map(|w| w[1].1 - w[0].1)
-                .fold(0.0, f64::max);
+            let burst = r.largest_step_g();
             let _ = write!(cap, " At dx = {name} the first {ONSET_G} g has left by {onset:.1}°, the largest step's outflow is {burst:.3} g, the spoon turns back at {:.1}° with {:.3} g out, and {:.3} g more leaves after.", r.turn_deg.unwrap_or(f64::NAN), r.poured_at_turn_g.unwrap_or(f64::NAN), r.after_turn_g().unwrap_or(f64::NAN));
         }
         let _ = writeln!(md, "{cap}*\n");
@@ -399,4 +422,83 @@ pub fn figure(path: &Path, coarse: Option<&Row>, fine: Option<&Row>) -> anyhow::
         chart::legend(&mut c, SeriesLabelPosition::UpperLeft, None)?;
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::skills::Theta;
+
+    fn row(scene: usize, error_g: f64, burst_g: f64) -> Row {
+        Row {
+            scene,
+            dx: 0.005,
+            target_g: 1.0,
+            held_g: 2.0,
+            turn_deg: Some(80.0),
+            poured_at_turn_g: Some(0.9),
+            delivered_g: 1.0 + error_g,
+            wall_s: 1.0,
+            particle_substeps: 1e6,
+            trace: vec![(60.0, 0.0), (70.0, burst_g), (80.0, burst_g + 0.01)],
+        }
+    }
+
+    fn trial(error_g: f64) -> Trial {
+        Trial {
+            method: "policy".into(),
+            theta: Theta([0.0; 5]),
+            loss: 0.0,
+            indicator: error_g,
+            rollouts: 1.0,
+            particle_substeps: 1e6,
+            wall_s: 1.0,
+        }
+    }
+
+    fn page(loop_err: f64, policy_err: f64, tapped_burst: f64) -> String {
+        let coarse: Vec<Row> = (0..10)
+            .map(|j| row(j, loop_err * (1.0 + 0.1 * j as f64), 0.2))
+            .collect();
+        let tapped: Vec<Row> = (0..10)
+            .map(|j| row(j, loop_err * (1.0 + 0.1 * j as f64), tapped_burst))
+            .collect();
+        let policy: Vec<Trial> = (0..10)
+            .map(|j| trial(policy_err * (1.0 + 0.05 * j as f64)))
+            .collect();
+        let s = Settings {
+            scenes: 10,
+            fine_scenes: 0,
+            pour: Default::default(),
+            faster_turn_back_deg: 720.0,
+            tapped: Default::default(),
+            seed: 0,
+        };
+        report(
+            &coarse,
+            &[],
+            &[],
+            &tapped,
+            Some(&policy),
+            &s,
+            "cmd",
+            "machine",
+            1.0,
+            360.0,
+        )
+    }
+
+    /// The verdicts are the data's: the loop better or worse than the policy, and the taps
+    /// gradual or not, flip with the figures instead of being fixed text.
+    #[test]
+    fn the_verdicts_follow_the_data() {
+        let better = page(0.05, 0.2, 0.05);
+        assert!(better.contains("The gravimetric pour doses better"), "{better}");
+        assert!(better.contains("makes the outflow more gradual"), "{better}");
+        assert!(!better.contains("What might meter it"), "{better}");
+        let worse = page(0.2, 0.05, 0.3);
+        assert!(worse.contains("it is worse than the open-loop policy"), "{worse}");
+        assert!(worse.contains("does not make the outflow more gradual"), "{worse}");
+        assert!(worse.contains("What might meter it"), "{worse}");
+    }
 }
