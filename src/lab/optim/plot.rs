@@ -30,8 +30,9 @@ pub fn band(
     all: &BTreeMap<(Method, usize), Vec<Record>>,
 ) -> BTreeMap<Method, Vec<(usize, f64, f64)>> {
     let mut out: BTreeMap<Method, Vec<Vec<f64>>> = BTreeMap::new();
+    let bc = super::report::backward_cost(all);
     for ((m, _), list) in all {
-        let c = curve(list);
+        let c = curve(list, bc);
         let slot = out.entry(*m).or_default();
         for p in c {
             if slot.len() < p.epoch {

@@ -24,10 +24,11 @@ pub fn sort_rollouts(list: &mut [Record]) {
     });
 }
 
-/// What a backward pass costs, in forward particle-substeps per forward particle-substep: the
-/// recomputation of every step's substeps and the adjoint stages, over the taped forward of the
-/// same run (`powderlab bench scenes/powder_transport.ron --backward` measured 2.41–2.46 on
-/// 2 cores, `docs/results/performance.md`).
+/// The multiple of a forward pass that budgets are planned with: a gradient rollout counts as
+/// `1 + BACKWARD_COST` forward rollouts when a method's rollouts are counted out
+/// (`powderlab bench scenes/powder_transport.ron --backward` measured 2.41–2.46 on 2 cores,
+/// `docs/results/performance.md`). The reports do not assume it: they count compute at the
+/// multiple measured in the run itself ([`backward_cost`]).
 pub const BACKWARD_COST: f64 = 2.4;
 
 /// The gradient rollouts (rounded up) that cost the compute of `budget` forward rollouts.
@@ -35,12 +36,35 @@ pub fn gradient_rollouts(budget: usize) -> usize {
     (budget as f64 / (1.0 + BACKWARD_COST)).ceil() as usize
 }
 
+/// The backward pass's cost measured in a run's own records: the mean rollout seconds of its
+/// gradient rollouts over those of its forward rollouts, minus the forward that a gradient
+/// rollout also runs. `None` when the run has not both kinds (or no time was recorded).
+pub fn measured_backward_cost(all: &BTreeMap<(Method, usize), Vec<Record>>) -> Option<f64> {
+    let (mut g, mut f) = ((0.0, 0usize), (0.0, 0usize));
+    for r in all.values().flatten() {
+        let slot = if r.outcome.grad.is_some() {
+            &mut g
+        } else {
+            &mut f
+        };
+        slot.0 += r.outcome.wall_s;
+        slot.1 += 1;
+    }
+    (g.1 > 0 && f.1 > 0 && f.0 > 0.0).then(|| (g.0 / g.1 as f64) / (f.0 / f.1 as f64) - 1.0)
+}
+
+/// The multiple a run's compute is counted at: the measured one, or [`BACKWARD_COST`] for a
+/// run without both kinds of rollout (where it does not matter, or cannot be measured).
+pub fn backward_cost(all: &BTreeMap<(Method, usize), Vec<Record>>) -> f64 {
+    measured_backward_cost(all).unwrap_or(BACKWARD_COST)
+}
+
 /// What a rollout costs in simulated particle-substeps, its backward pass (if it has one) at
-/// [`BACKWARD_COST`] times the forward's.
-pub fn rollout_cost(o: &Outcome) -> f64 {
+/// `backward_cost` times the forward's.
+pub fn rollout_cost(o: &Outcome, backward_cost: f64) -> f64 {
     let forward = o.particles as f64 * o.steps as f64 * o.substeps as f64;
     if o.grad.is_some() {
-        forward * (1.0 + BACKWARD_COST)
+        forward * (1.0 + backward_cost)
     } else {
         forward
     }
@@ -64,8 +88,8 @@ pub struct Point {
     pub particle_substeps: f64,
 }
 
-/// The running best of a list in canonical order.
-pub fn curve(list: &[Record]) -> Vec<Point> {
+/// The running best of a list in canonical order, a backward pass counted at `backward_cost`.
+pub fn curve(list: &[Record], backward_cost: f64) -> Vec<Point> {
     let mut best: Option<&Record> = None;
     let mut wall = 0.0;
     let mut cost = 0.0;
@@ -73,7 +97,7 @@ pub fn curve(list: &[Record]) -> Vec<Point> {
         .enumerate()
         .map(|(i, r)| {
             wall += r.outcome.wall_s;
-            cost += rollout_cost(&r.outcome);
+            cost += rollout_cost(&r.outcome, backward_cost);
             if best.is_none_or(|b| r.outcome.loss < b.outcome.loss) {
                 best = Some(r);
             }
@@ -94,8 +118,9 @@ pub fn metrics_csv(all: &BTreeMap<(Method, usize), Vec<Record>>) -> String {
     let mut s = String::from(
         "method,seed,epoch,rollouts,loss,indicator,transported,theta_d,theta_s,theta_l,theta_t,theta_p,grad_norm,best_loss,best_indicator,best_dose_error,particle_substeps,wall_s\n",
     );
+    let bc = backward_cost(all);
     for ((m, seed), list) in all {
-        for (r, p) in list.iter().zip(curve(list)) {
+        for (r, p) in list.iter().zip(curve(list, bc)) {
             let g = r
                 .outcome
                 .grad
@@ -134,11 +159,12 @@ pub fn equal_compute_budgets(
     all: &BTreeMap<(Method, usize), Vec<Record>>,
 ) -> BTreeMap<usize, f64> {
     let mut out: BTreeMap<usize, f64> = BTreeMap::new();
+    let bc = backward_cost(all);
     for ((m, k), l) in all {
         if !methods.contains(m) {
             continue;
         }
-        if let Some(p) = curve(l).last() {
+        if let Some(p) = curve(l, bc).last() {
             let b = out.entry(*k).or_insert(f64::INFINITY);
             *b = b.min(p.particle_substeps);
         }
@@ -177,6 +203,7 @@ pub fn summary(
     replayed: usize,
     ran: usize,
 ) -> serde_json::Value {
+    let bc = backward_cost(all);
     let unit = match problem.target {
         crate::scene::TargetValue::Particles(_) => "particles",
         crate::scene::TargetValue::Grams(_) => "g",
@@ -193,7 +220,7 @@ pub fn summary(
             .collect();
         let finals: Vec<f64> = per_seed
             .iter()
-            .filter_map(|(_, l)| curve(l).last().map(|p| p.best_indicator))
+            .filter_map(|(_, l)| curve(l, bc).last().map(|p| p.best_indicator))
             .collect();
         let initials: Vec<f64> = per_seed
             .iter()
@@ -201,17 +228,17 @@ pub fn summary(
             .collect();
         let best_losses: Vec<f64> = per_seed
             .iter()
-            .filter_map(|(_, l)| curve(l).last().map(|p| p.best_loss))
+            .filter_map(|(_, l)| curve(l, bc).last().map(|p| p.best_loss))
             .collect();
         let dose: Vec<f64> = finals.iter().map(|x| x.abs()).collect();
         let (dm, ds, dmed) = dose_stats(&dose);
         let spent: Vec<f64> = per_seed
             .iter()
-            .filter_map(|(_, l)| curve(l).last().map(|p| p.particle_substeps))
+            .filter_map(|(_, l)| curve(l, bc).last().map(|p| p.particle_substeps))
             .collect();
         let at_budget: Vec<Point> = per_seed
             .iter()
-            .filter_map(|(k, l)| point_within(&curve(l), budgets[k]))
+            .filter_map(|(k, l)| point_within(&curve(l, bc), budgets[k]))
             .collect();
         let eq_dose: Vec<f64> = at_budget.iter().map(|p| p.best_indicator.abs()).collect();
         let (em, es, emed) = dose_stats(&eq_dose);
@@ -223,7 +250,7 @@ pub fn summary(
         let seeds: Vec<serde_json::Value> = per_seed
             .iter()
             .map(|(k, l)| {
-                let c = curve(l);
+                let c = curve(l, bc);
                 let best = l
                     .iter()
                     .min_by(|a, b| a.outcome.loss.total_cmp(&b.outcome.loss))
@@ -275,7 +302,9 @@ pub fn summary(
     json!({
         "scene": problem.scene.path.display().to_string(),
         "selection": SELECTION,
-        "backward_cost": BACKWARD_COST,
+        "backward_cost_planned": BACKWARD_COST,
+        "backward_cost_measured": measured_backward_cost(all),
+        "backward_cost": bc,
         "ranking_equal_rollouts": ranking(rank_rollouts),
         "ranking_equal_compute": ranking(rank_compute),
         "equal_compute_budget_per_seed": budgets.values().collect::<Vec<_>>(),
@@ -322,18 +351,43 @@ mod tests {
     fn a_backward_pass_counts_at_its_cost() {
         let forward = record(Method::Random, 0, 1.0, 0.0, false);
         let gradient = record(Method::Grad, 0, 1.0, 0.0, true);
-        assert_eq!(rollout_cost(&forward.outcome), 2000.0);
-        assert_eq!(
-            rollout_cost(&gradient.outcome),
-            2000.0 * (1.0 + BACKWARD_COST)
+        assert_eq!(rollout_cost(&forward.outcome, 3.0), 2000.0);
+        assert_eq!(rollout_cost(&gradient.outcome, 3.0), 2000.0 * 4.0);
+    }
+
+    /// The multiple is the run's own: gradient rollouts that took 4.5 s against forward ones
+    /// of 1.5 s cost 2 forward passes more each; a run of one kind has no measurement.
+    #[test]
+    fn the_backward_multiple_is_measured_in_the_run() {
+        let timed = |m, e, g, wall_s| {
+            let mut r = record(m, e, 1.0, 0.0, g);
+            r.outcome.wall_s = wall_s;
+            r
+        };
+        let mut all = BTreeMap::new();
+        all.insert(
+            (Method::Grad, 0),
+            vec![
+                timed(Method::Grad, 0, true, 4.0),
+                timed(Method::Grad, 1, true, 5.0),
+            ],
         );
+        assert_eq!(measured_backward_cost(&all), None);
+        assert_eq!(backward_cost(&all), BACKWARD_COST);
+        all.insert(
+            (Method::Random, 0),
+            vec![timed(Method::Random, 0, false, 1.5)],
+        );
+        assert_eq!(measured_backward_cost(&all), Some(2.0));
     }
 
     #[test]
     fn equal_compute_stops_each_method_at_the_cheapest_methods_spend() {
         let mut all = BTreeMap::new();
-        // Three gradient rollouts (6,800 each) against three forward ones (2,000 each): the
-        // budget is 6,000, within which grad has only its first rollout and random all three.
+        // Three gradient rollouts (6,800 each at a backward multiple of 2.4) against three
+        // forward ones (2,000 each): the budget is 6,000, within which grad has only its first
+        // rollout and random all three.
+        let bc = 2.4;
         all.insert(
             (Method::Grad, 0),
             vec![
@@ -350,15 +404,20 @@ mod tests {
                 record(Method::Random, 2, 4.5, 1.0, false),
             ],
         );
+        // The run measured its gradient rollouts at 3.4 s against 1 s forward: a multiple of 2.4.
+        for r in all.get_mut(&(Method::Grad, 0)).unwrap() {
+            r.outcome.wall_s = 3.4;
+        }
+        assert!((backward_cost(&all) - bc).abs() < 1e-12);
         let budgets = equal_compute_budgets(&[Method::Grad, Method::Random], &all);
         assert_eq!(budgets[&0], 6000.0);
-        let grad = point_within(&curve(&all[&(Method::Grad, 0)]), budgets[&0]).unwrap();
-        let random = point_within(&curve(&all[&(Method::Random, 0)]), budgets[&0]).unwrap();
+        let grad = point_within(&curve(&all[&(Method::Grad, 0)], bc), budgets[&0]).unwrap();
+        let random = point_within(&curve(&all[&(Method::Random, 0)], bc), budgets[&0]).unwrap();
         assert_eq!((grad.epoch, grad.best_indicator), (1, 3.0));
         assert_eq!((random.epoch, random.best_indicator), (3, 1.0));
         // At equal rollouts grad's best by loss is its third, whose dose error 0.1 beats an
         // over-delivery of 0.5 that a signed average would have ranked first.
-        let last = curve(&all[&(Method::Grad, 0)]).last().copied().unwrap();
+        let last = curve(&all[&(Method::Grad, 0)], bc).last().copied().unwrap();
         assert_eq!(last.best_indicator.abs(), 0.1);
     }
 }

@@ -63,6 +63,9 @@ pub struct TaskResult {
     pub equal_rollouts: usize,
     /// Mean equal-compute budget per seed, in particle-substeps.
     pub budget_particle_substeps: f64,
+    /// The backward pass's multiple of a forward, measured in this task's own rollouts
+    /// ([`crate::lab::optim::report::measured_backward_cost`]); compute is counted at it.
+    pub backward_cost_measured: Option<f64>,
     pub rows: Vec<Row>,
     /// Each method's whole run time (all seeds, both cores), seconds.
     pub wall_s: BTreeMap<String, f64>,
@@ -125,6 +128,7 @@ pub fn analyse(
     wall_s: BTreeMap<String, f64>,
 ) -> TaskResult {
     let budgets = crate::lab::optim::report::equal_compute_budgets(methods, records);
+    let bc = crate::lab::optim::report::backward_cost(records);
     let seeds: Vec<usize> = budgets.keys().copied().collect();
     let equal_rollouts = records
         .iter()
@@ -141,7 +145,7 @@ pub fn analyse(
                 let Some(l) = records.get(&(m, *k)) else {
                     continue;
                 };
-                let c = curve(l);
+                let c = curve(l, bc);
                 if let Some(p) = point_within(&c, budgets[k]) {
                     at_budget.push(p);
                 }
@@ -202,6 +206,7 @@ pub fn analyse(
         seeds: seeds.len(),
         equal_rollouts,
         budget_particle_substeps: mean_std(&budgets.values().copied().collect::<Vec<_>>()).0,
+        backward_cost_measured: crate::lab::optim::report::measured_backward_cost(records),
         rows,
         wall_s,
     }
@@ -215,8 +220,9 @@ pub fn median_curves(
     n: usize,
 ) -> BTreeMap<Method, Vec<(f64, f64)>> {
     let mut per: BTreeMap<Method, Vec<Vec<Point>>> = BTreeMap::new();
+    let bc = crate::lab::optim::report::backward_cost(records);
     for ((m, _), l) in records {
-        per.entry(*m).or_default().push(curve(l));
+        per.entry(*m).or_default().push(curve(l, bc));
     }
     let x_max = |c: &Vec<Point>| {
         c.last().map_or(0.0, |p| {
@@ -417,6 +423,7 @@ mod tests {
             seeds: 10,
             equal_rollouts: 20,
             budget_particle_substeps: 1.0,
+            backward_cost_measured: Some(3.0),
             rows: vec![
                 row(Method::Random, &shifted(0.3)),
                 row(Method::Sac, &seeds),

@@ -493,12 +493,24 @@ mod tests {
     #[test]
     fn the_verdicts_follow_the_data() {
         let better = page(0.05, 0.2, 0.05);
-        assert!(better.contains("The gravimetric pour doses better"), "{better}");
-        assert!(better.contains("makes the outflow more gradual"), "{better}");
+        assert!(
+            better.contains("The gravimetric pour doses better"),
+            "{better}"
+        );
+        assert!(
+            better.contains("makes the outflow more gradual"),
+            "{better}"
+        );
         assert!(!better.contains("What might meter it"), "{better}");
         let worse = page(0.2, 0.05, 0.3);
-        assert!(worse.contains("it is worse than the open-loop policy"), "{worse}");
-        assert!(worse.contains("does not make the outflow more gradual"), "{worse}");
+        assert!(
+            worse.contains("it is worse than the open-loop policy"),
+            "{worse}"
+        );
+        assert!(
+            worse.contains("does not make the outflow more gradual"),
+            "{worse}"
+        );
         assert!(worse.contains("What might meter it"), "{worse}");
     }
 }

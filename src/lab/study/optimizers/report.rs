@@ -28,7 +28,7 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
         (&BASELINES, format!("random search, CMA-ES and SAC run {b} forward rollouts")),
         (
             &[Method::Grad, Method::Carry, Method::Smoothed],
-            format!("grad, carry and smoothed run {b}/(1 + {c}) gradient rollouts (a backward pass costs {c} forward passes, `docs/results/performance.md`), rounded up, and their curriculum frees θ_t and θ_p after half of each method's rollouts"),
+            format!("grad, carry and smoothed run {b}/(1 + {c}) gradient rollouts (the budgets are planned with a backward pass at {c} forward passes, `docs/results/performance.md`; the scores count it at the multiple each task's run measured, below), rounded up, and their curriculum frees θ_t and θ_p after half of each method's rollouts"),
         ),
         (
             &[Method::Carry],
@@ -91,8 +91,12 @@ A method's score after some compute is the dose error |target − delivered| of 
         let winners = t.winners();
         let _ = writeln!(
             s,
-            "Budget: {:.2} G particle-substeps per seed on average. Lowest mean dose error at equal compute: **{best}**; best baseline: {best_base}. {}\n",
+            "Budget: {:.2} G particle-substeps per seed on average, a backward pass counted at {}. Lowest mean dose error at equal compute: **{best}**; best baseline: {best_base}. {}\n",
             t.budget_particle_substeps / 1e9,
+            t.backward_cost_measured.map_or_else(
+                || format!("the planned {c}× a forward pass (no run of both kinds to measure it)"),
+                |m| format!("**{m:.2}× a forward pass, as measured in this task's rollouts** (the mean rollout seconds of its gradient rollouts over its forward ones, minus one)")
+            ),
             if winners.is_empty() {
                 format!("**No gradient-informed method beats all three baselines at p < {ALPHA}.**")
             } else {

@@ -54,14 +54,44 @@ pub struct Rollout {
     pub w: Vec<f64>,
     pub loss: f64,
     pub dose_error: f64,
-    /// Particle-substeps, the backward pass at its cost.
-    pub cost: f64,
+    /// Particle-substeps of the forward pass; a gradient rollout's backward pass is counted
+    /// at the multiple the study measures ([`Rollout::cost_at`]).
+    pub forward_ps: f64,
     pub wall_s: f64,
     #[serde(default)]
     pub grad: Option<Vec<f64>>,
     /// `target − delivered`, signed (the line method solves it for 0).
     #[serde(default)]
     pub indicator: f64,
+}
+
+impl Rollout {
+    /// Particle-substeps with a backward pass (if any) at `backward_cost` forward passes.
+    pub fn cost_at(&self, backward_cost: f64) -> f64 {
+        self.forward_ps
+            * if self.grad.is_some() {
+                1.0 + backward_cost
+            } else {
+                1.0
+            }
+    }
+}
+
+/// The backward pass's multiple of a forward, measured in rollouts of one study: the mean
+/// seconds of its gradient rollouts over its forward ones, minus one; the planned
+/// [`BACKWARD_COST`] where it has not both kinds.
+pub fn measured_backward_cost<'a>(rollouts: impl Iterator<Item = &'a Rollout>) -> f64 {
+    let (mut g, mut f) = ((0.0, 0usize), (0.0, 0usize));
+    for r in rollouts {
+        let slot = if r.grad.is_some() { &mut g } else { &mut f };
+        slot.0 += r.wall_s;
+        slot.1 += 1;
+    }
+    if g.1 > 0 && f.1 > 0 && f.0 > 0.0 {
+        (g.0 / g.1 as f64) / (f.0 / f.1 as f64) - 1.0
+    } else {
+        BACKWARD_COST
+    }
 }
 
 type Key = (usize, String, usize, usize);
@@ -127,7 +157,7 @@ impl Store {
             w: w.to_vec(),
             loss: o.loss,
             dose_error: o.indicator.abs(),
-            cost: forward * if with_grad { 1.0 + BACKWARD_COST } else { 1.0 },
+            forward_ps: forward,
             wall_s: o.wall_s,
             grad,
             indicator: o.indicator,
@@ -408,6 +438,8 @@ pub struct Cell {
     pub dose: Vec<f64>,
     pub rollouts: f64,
     pub cost: f64,
+    /// The backward multiple the scores count (measured in this dimension's rollouts).
+    pub backward_cost: f64,
 }
 
 /// Runs every dimension, method and seed and scores them at each seed's equal-compute budget
@@ -448,7 +480,8 @@ pub fn run(
                     .collect::<anyhow::Result<Vec<_>>>()
             })
             .collect::<anyhow::Result<_>>()?;
-        let spend = |l: &[Rollout]| l.iter().map(|r| r.cost).sum::<f64>();
+        let bc = measured_backward_cost(per.iter().flatten().flatten());
+        let spend = |l: &[Rollout]| l.iter().map(|r| r.cost_at(bc)).sum::<f64>();
         let budgets: Vec<f64> = (0..seeds)
             .map(|seed| {
                 per.iter()
@@ -464,10 +497,10 @@ pub fn run(
                 let mut best: Option<&Rollout> = None;
                 let mut used = 0;
                 for r in l {
-                    if spent + r.cost > budgets[seed] * (1.0 + 1e-12) && used > 0 {
+                    if spent + r.cost_at(bc) > budgets[seed] * (1.0 + 1e-12) && used > 0 {
                         break;
                     }
-                    spent += r.cost;
+                    spent += r.cost_at(bc);
                     used += 1;
                     if best.is_none_or(|b| r.loss < b.loss) {
                         best = Some(r);
@@ -483,6 +516,7 @@ pub fn run(
                 dose,
                 rollouts: mean(&n),
                 cost: mean(&c),
+                backward_cost: bc,
             });
         }
     }

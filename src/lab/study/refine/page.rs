@@ -32,9 +32,18 @@ pub fn report(
             sc.over, sc.screened, sc.reach, cells.first().map_or(0, |c| c.dose.len()), sc.over
         ),
     };
+    let mut measured: Vec<String> = Vec::new();
+    for c in cells {
+        let t = format!("{:.2} ({} knots)", c.backward_cost, c.knots);
+        if !measured.contains(&t) {
+            measured.push(t);
+        }
+    }
+    let measured = measured.join(", ");
     let _ = writeln!(
         s,
-        "Seed k refines the skill of Θ_k with residuals on its transport and pour (6 channels × knots parameters, `optim::refine`), Θ_k being {start}. Every method starts from the plain skill and gets the compute of {budget} forward rollouts (a backward pass at {BACKWARD_COST}×). line: the adjoint's direction, then a bracketed root search of the dose along it with forward rollouts (steps {LINE_STEPS:?} each way, then Illinois regula falsi); ray: the same search along random directions, forward rollouts only (the ablation: does the adjoint's direction matter?); adam: Adam (lr {ADAM_LR}) on the adjoint gradient; trust: the adjoint's direction in a trust region that keeps a step only if the loss falls (the hybrid's local phase); cmaes: CMA-ES (σ₀ {CMA_SIGMA0}); random: uniform draws in the box; sac: the optimiser benchmark's SAC over the residuals (its first action the plain skill). Score: dose error ({unit}) of the lowest-loss rollout within each seed's equal-compute budget. p: one-sided exact Wilcoxon signed-rank over the paired seeds that the adjoint method's dose error is smaller than the baseline's (ties dropped).\n"
+        "Seed k refines the skill of Θ_k with residuals on its transport and pour (6 channels × knots parameters, `optim::refine`), Θ_k being {start}. Every method starts from the plain skill and gets the compute of {budget} forward rollouts (the gradient methods' rollouts planned with a backward pass at {BACKWARD_COST}×; the scores count it at {}×, measured in the study's own rollouts: the mean seconds of its gradient rollouts over its forward ones, minus one). line: the adjoint's direction, then a bracketed root search of the dose along it with forward rollouts (steps {LINE_STEPS:?} each way, then Illinois regula falsi); ray: the same search along random directions, forward rollouts only (the ablation: does the adjoint's direction matter?); adam: Adam (lr {ADAM_LR}) on the adjoint gradient; trust: the adjoint's direction in a trust region that keeps a step only if the loss falls (the hybrid's local phase); cmaes: CMA-ES (σ₀ {CMA_SIGMA0}); random: uniform draws in the box; sac: the optimiser benchmark's SAC over the residuals (its first action the plain skill). Score: dose error ({unit}) of the lowest-loss rollout within each seed's equal-compute budget. p: one-sided exact Wilcoxon signed-rank over the paired seeds that the adjoint method's dose error is smaller than the baseline's (ties dropped).\n",
+        measured
     );
     s.push_str("| parameters | method | dose error mean ± std | median | p < cmaes | p < random | p < sac | p < ray | rollouts | G particle-substeps |\n|---|---|---|---|---|---|---|---|---|---|\n");
     for c in cells {
@@ -141,6 +150,7 @@ mod tests {
             dose,
             rollouts: 20.0,
             cost: 1.0,
+            backward_cost: 3.0,
         }
     }
 
