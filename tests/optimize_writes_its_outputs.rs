@@ -105,3 +105,46 @@ fn without_method_optimize_runs_the_benchmarks_verdict_at_equal_compute() {
     assert_eq!(settings["epochs"], 4, "{settings}");
     std::fs::remove_dir_all(&out).ok();
 }
+
+/// A stream that starts at seed 2 (`--first-seed 2 --seeds 1`) is seed 2 of a run from seed 0:
+/// the same Θ_init and the same randomness for every method, rollout for rollout.
+#[test]
+fn a_later_stream_reproduces_the_same_seed_of_a_longer_run() {
+    let root = std::env::temp_dir().join(format!("powderlab-stream-{}", std::process::id()));
+    let run = |dir: &str, extra: &[&str]| {
+        let out = root.join(dir);
+        let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+            .args([
+                "optimize",
+                SCENE,
+                "--method",
+                "random,cmaes",
+                "--epochs",
+                "2",
+                "--json",
+                "--out",
+            ])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        // method, seed, epoch, …: the rows of the run's seed `seed`, without the seed and the
+        // two timed columns (rollout seconds and the compute counted from them).
+        let csv = std::fs::read_to_string(out.join("metrics.csv")).unwrap();
+        move |seed: &str| -> Vec<String> {
+            csv.lines()
+                .skip(1)
+                .map(|l| l.split(',').collect::<Vec<_>>())
+                .filter(|f| f[1] == seed)
+                .map(|f| [&f[..1], &f[2..f.len() - 2]].concat().join(","))
+                .collect()
+        }
+    };
+    let long = run("long", &["--seeds", "3"]);
+    let later = run("later", &["--seeds", "1", "--first-seed", "2"]);
+    assert_eq!(later("0").len(), 4);
+    assert_eq!(later("0"), long("2"));
+    assert_ne!(later("0"), long("0"));
+    std::fs::remove_dir_all(&root).ok();
+}

@@ -23,6 +23,10 @@ pub struct Args {
     /// Seeds, each with its own Θ_init.
     #[arg(long, default_value_t = 3)]
     seeds: usize,
+    /// The first seed: the run's seeds are first-seed, first-seed + 1, … (seeds 0–9 chose the
+    /// optimisers' settings; a verdict on fresh data starts at 10).
+    #[arg(long, default_value_t = 0)]
+    first_seed: usize,
     /// Run directory (default: runs/<scene name>).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -116,6 +120,7 @@ pub fn run(args: Args) -> Result<()> {
         method,
         epochs,
         seeds,
+        first_seed,
         out,
         resume,
         threads,
@@ -209,6 +214,7 @@ pub fn run(args: Args) -> Result<()> {
         methods,
         epochs,
         seeds,
+        first_seed,
         rmsprop: optim::rmsprop::RmsProp {
             lr,
             switch_epoch: curriculum_switch,

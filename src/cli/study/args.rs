@@ -137,6 +137,10 @@ pub struct Optimizers {
     /// The page's name: NAME.md, NAME.svg and NAME.csv in --results.
     #[arg(long = "page", default_value = "optimisation")]
     pub name: String,
+    /// The first seed of the stream: seeds 0–9 chose the optimisers' settings (the design
+    /// stream); 10 and above have judged nothing yet (a verdict stream).
+    #[arg(long, default_value_t = 0)]
+    pub first_seed: usize,
     #[arg(long, value_parser = crate::cli::threads_arg)]
     pub threads: Option<usize>,
 }

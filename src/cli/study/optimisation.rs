@@ -109,6 +109,9 @@ pub(super) fn optimizers_cmd(a: args::Optimizers) -> Result<()> {
     if a.name != "optimisation" {
         command.push_str(&format!(" --page {}", a.name));
     }
+    if a.first_seed != 0 {
+        command.push_str(&format!(" --first-seed {}", a.first_seed));
+    }
     for t in &tasks {
         super::super::announce_work(t, (a.paired.seeds * a.paired.budget * methods.len()) as f64)?;
     }
@@ -116,9 +119,15 @@ pub(super) fn optimizers_cmd(a: args::Optimizers) -> Result<()> {
     let md = study::optimizers::run(&study::optimizers::StudyOptions {
         tasks,
         seeds: a.paired.seeds,
+        first_seed: a.first_seed,
         budget: a.paired.budget,
         methods,
-        out: a.common.out.join("optimizers"),
+        // One folder per stream: a run's settings (its first seed among them) fix its journal.
+        out: a.common.out.join(if a.first_seed == 0 {
+            "optimizers".to_string()
+        } else {
+            format!("optimizers-from-{}", a.first_seed)
+        }),
         results: a.page.results.clone(),
         page: a.name.clone(),
         command,

@@ -8,7 +8,7 @@ use super::journal::{Journal, Record};
 use super::problem::Problem;
 use super::rmsprop::RmsState;
 use super::sac::Sac;
-use super::{method_seed, report, smoothing, sobol_thetas, Method, Settings};
+use super::{report, smoothing, sobol_thetas, Method, Settings};
 use crate::skills::Theta;
 use crate::util::{write_atomic, SplitMix64};
 use anyhow::Context;
@@ -162,7 +162,7 @@ impl Runner<'_> {
             })
             .collect();
         let mut rngs: Vec<SplitMix64> = (0..s.seeds)
-            .map(|k| SplitMix64(method_seed(Method::Smoothed, k)))
+            .map(|k| SplitMix64(s.method_seed(Method::Smoothed, k)))
             .collect();
         for step in 1..=s.epochs_for(Method::Smoothed) / n {
             // Θ + σξ for every seed and sample, clamped to the box; ξ is recomputed from the
@@ -192,7 +192,7 @@ impl Runner<'_> {
                     let pass = if s.smoothing.packing > 0.0 {
                         Pass::Repacked {
                             frac: s.smoothing.packing,
-                            seed: method_seed(Method::Smoothed, k)
+                            seed: s.method_seed(Method::Smoothed, k)
                                 ^ (((step * n + i % n) as u64) << 40),
                         }
                     } else {
@@ -227,7 +227,7 @@ impl Runner<'_> {
 
     pub(super) fn sac(&self, s: &Settings) -> anyhow::Result<()> {
         let mut agents: Vec<Sac> = (0..s.seeds)
-            .map(|k| Sac::new(s.sac, &s.start(k)[..], method_seed(Method::Sac, k)))
+            .map(|k| Sac::new(s.sac, &s.start(k)[..], s.method_seed(Method::Sac, k)))
             .collect::<candle_core::Result<_>>()?;
         // The temperature and the reward's standardisation, per seed and episode.
         let mut log = String::from("seed,episode,alpha,loss_mean,loss_std\n");
@@ -257,7 +257,7 @@ impl Runner<'_> {
     pub(super) fn random(&self, s: &Settings) -> anyhow::Result<()> {
         let jobs: Vec<(usize, usize, Theta)> = (0..s.seeds)
             .flat_map(|k| {
-                let mut rng = SplitMix64(method_seed(Method::Random, k));
+                let mut rng = SplitMix64(s.method_seed(Method::Random, k));
                 (0..s.epochs).map(move |i| {
                     let th = if i == 0 {
                         s.start(k)
@@ -312,7 +312,7 @@ impl Runner<'_> {
             .map(|(k, f)| {
                 cmaes::CMAESOptions::new(s.start(k).to_vec(), s.cmaes.sigma0)
                     .population_size(lambda)
-                    .seed(method_seed(Method::Cmaes, k))
+                    .seed(s.method_seed(Method::Cmaes, k))
                     .build(f)
                     .map_err(|e| anyhow::anyhow!("CMA-ES options: {e:?}"))
             })
@@ -351,7 +351,7 @@ impl Runner<'_> {
                 let mut v = vec![s.start(k)];
                 v.extend(sobol_thetas(
                     s.epochs - 1,
-                    method_seed(Method::Hybrid, k) as u32,
+                    s.method_seed(Method::Hybrid, k) as u32,
                 ));
                 v
             })
@@ -391,7 +391,7 @@ impl Runner<'_> {
             let start = lowest(&found, k).context("the global phase ran nothing")?;
             let f0 = start.outcome.indicator;
             let partner = lowest(found.iter().filter(|r| r.outcome.indicator * f0 < 0.0), k);
-            let mut rng = SplitMix64(method_seed(method, k));
+            let mut rng = SplitMix64(s.method_seed(method, k));
             let mut batch = global;
             super::line::search(
                 &start.theta[..],

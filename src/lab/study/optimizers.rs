@@ -267,6 +267,8 @@ pub struct StudyOptions {
     /// The skill scenes, each a task.
     pub tasks: Vec<std::path::PathBuf>,
     pub seeds: usize,
+    /// The stream's first seed (`optim::Settings::first_seed`).
+    pub first_seed: usize,
     /// Compute per seed and method, in forward rollouts.
     pub budget: usize,
     pub methods: Vec<Method>,
@@ -320,6 +322,7 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
             methods: o.methods.clone(),
             epochs: o.budget,
             seeds: o.seeds,
+            first_seed: o.first_seed,
             // The paper's curriculum frees θ_t and θ_p after half the budget (15 of 30).
             rmsprop: crate::lab::optim::rmsprop::RmsProp {
                 switch_epoch: o.budget.div_ceil(2),

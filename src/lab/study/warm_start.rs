@@ -63,6 +63,7 @@ fn race(
     init: Option<Theta>,
 ) -> anyhow::Result<Vec<f64>> {
     let settings = optim::Settings {
+        first_seed: 0,
         scene_hash: scene.fingerprint(),
         methods: vec![Method::Cmaes],
         epochs: BUDGET,
