@@ -96,6 +96,9 @@ struct EvalArgs {
     /// The dataset's seed (the held-out scenes come from a stream derived from it).
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// The first held-out draw: draws 0–19 chose the policy's design; 20 and above are fresh.
+    #[arg(long, default_value_t = 0)]
+    first_draw: usize,
 }
 
 #[derive(clap::Args)]
@@ -289,6 +292,7 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
         scenes: e.scenes,
         budget: e.budget,
         seed: e.seed,
+        first_draw: e.first_draw,
     };
     let mut loaded = Vec::new();
     for name in ["policy", "finetuned"] {
@@ -308,9 +312,13 @@ fn eval_cmd(e: EvalArgs) -> Result<()> {
         })
         .collect();
     let pb = super::bar(e.scenes as u64, false);
-    let rows = eval::run(&scene, &cfg, &e.dir.join("eval"), &candidates, &|k| {
-        pb.set_position(k as u64)
-    })?;
+    let rows = eval::run(
+        &scene,
+        &cfg,
+        &e.dir.join(cfg.dir_name()),
+        &candidates,
+        &|k| pb.set_position(k as u64),
+    )?;
     pb.finish_and_clear();
     let mut md =
         String::from("| method | dose error (g), mean | median | rollouts |\n|---|---|---|---|\n");

@@ -227,6 +227,10 @@ pub struct Policy {
     /// The policy's scene (default scenes/policy_dosing.ron).
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// The first held-out draw: draws 0–19 chose the policy's design (the design draws); 20
+    /// and above have judged nothing yet (a verdict stream).
+    #[arg(long, default_value_t = 0)]
+    pub first_draw: usize,
 }
 
 #[derive(Args)]
@@ -235,6 +239,9 @@ pub struct Pour {
     pub common: Common,
     #[command(flatten)]
     pub page: Page,
+    /// The first held-out draw (as `study policy --first-draw`, whose policy it compares with).
+    #[arg(long, default_value_t = 0)]
+    pub first_draw: usize,
 }
 
 #[derive(Args)]

@@ -185,6 +185,7 @@ pub(super) fn policy_cmd(a: args::Policy) -> Result<()> {
             scenes: 20,
             budget: 30,
             seed: 0,
+            first_draw: a.first_draw,
         },
     };
     let pb = super::super::bar(1, a.common.json);
@@ -196,7 +197,10 @@ pub(super) fn policy_cmd(a: args::Policy) -> Result<()> {
         pb.set_message(step.to_string());
     })?;
     pb.finish_and_clear();
-    let command = format!("powderlab study policy --out {}", a.common.out.display());
+    let mut command = format!("powderlab study policy --out {}", a.common.out.display());
+    if a.first_draw != 0 {
+        command.push_str(&format!(" --first-draw {}", a.first_draw));
+    }
     let md = policy::report(
         &o,
         &settings,
@@ -240,6 +244,7 @@ pub(super) fn pour_cmd(a: args::Pour) -> Result<()> {
             ..Default::default()
         },
         seed: 0,
+        first_draw: a.first_draw,
     };
     let start = Instant::now();
     let dir = a.common.out.join("pour");
@@ -267,14 +272,27 @@ pub(super) fn pour_cmd(a: args::Pour) -> Result<()> {
     ] {
         let pb = super::super::bar(n as u64, a.common.json);
         pb.set_message(sub.to_string());
-        let r = pour::run(scene, g, settings.seed, n, &dir.join(sub), &|k| {
-            pb.set_position(k as u64)
-        })?;
+        let r = pour::run(
+            scene,
+            g,
+            settings.seed,
+            settings.first_draw,
+            n,
+            &dir.join(sub),
+            &|k| pb.set_position(k as u64),
+        )?;
         pb.finish_and_clear();
         rows.push(r);
     }
-    let policy = pour::policy_trials(&a.common.out.join("policy"));
-    let command = format!("powderlab study pour --out {}", a.common.out.display());
+    let policy = pour::policy_trials(
+        &a.common.out.join("policy"),
+        settings.first_draw,
+        settings.scenes,
+    );
+    let mut command = format!("powderlab study pour --out {}", a.common.out.display());
+    if a.first_draw != 0 {
+        command.push_str(&format!(" --first-draw {}", a.first_draw));
+    }
     let md = pour::report(
         &rows[0],
         &rows[1],

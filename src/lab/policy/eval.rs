@@ -86,13 +86,44 @@ pub struct Candidate<'a> {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EvalConfig {
     pub scenes: usize,
+    /// The first held-out draw: the comparison runs draws `first_draw..first_draw + scenes` of
+    /// the held-out stream. Draws below [`DESIGN_DRAWS`] chose the policy's design.
+    #[serde(default)]
+    pub first_draw: usize,
     /// The per-scene optimiser's full budget (forward rollouts).
     pub budget: usize,
     /// The dataset's seed (the held-out stream is derived from it).
     pub seed: u64,
 }
 
+/// The design draws: held-out draws `0..DESIGN_DRAWS` scored successive designs of the policy
+/// (its knob head, the dataset's size, the ensemble) and the pour study's variants, which were
+/// chosen after seeing those scores. A verdict on fresh data uses draws from here on.
+pub const DESIGN_DRAWS: usize = 20;
+
 impl EvalConfig {
+    /// The comparison's folder under the policy study's: `eval` for the design draws from 0,
+    /// `eval-from-N` for a stream from draw N.
+    pub fn dir_name(&self) -> String {
+        if self.first_draw == 0 {
+            "eval".into()
+        } else {
+            format!("eval-from-{}", self.first_draw)
+        }
+    }
+
+    /// The page's sentence on which draws these are.
+    pub fn stream_text(&self) -> String {
+        let (first, last) = (self.first_draw, self.first_draw + self.scenes.max(1) - 1);
+        if first >= DESIGN_DRAWS {
+            format!("Held-out draws {first}–{last}: a verdict stream. No setting was chosen on them; the policy's design (its knob head, the dataset's size, the ensemble) and the pour variants were chosen after seeing scores on draws 0–{}, the design draws.", DESIGN_DRAWS - 1)
+        } else if last < DESIGN_DRAWS {
+            format!("Held-out draws {first}–{last}: the design draws. The policy's design (its knob head, the dataset's size, the ensemble) and the pour variants were chosen after seeing scores on them, so the comparisons below are not tests on fresh data; those come from `--first-draw {DESIGN_DRAWS}`.")
+        } else {
+            format!("Held-out draws {first}–{last}: draws 0–{} of them chose the policy's design and the rest did not, a mixed stream.", DESIGN_DRAWS - 1)
+        }
+    }
+
     /// The warm start's budget: a quarter of the full one, rounded up.
     pub fn warm_budget(&self) -> usize {
         self.budget.div_ceil(4)
@@ -216,7 +247,7 @@ pub fn run(
     super::file::stamped(&cfg_path, &stamp, "an evaluation", "--dir")?;
     let spec = spec_of(base)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
-    (0..cfg.scenes)
+    (cfg.first_draw..cfg.first_draw + cfg.scenes)
         .into_par_iter()
         .map(|j| {
             let d = draw_scene(spec, base, cfg.seed.wrapping_add(HELD_OUT_STREAM), j);

@@ -58,7 +58,7 @@ pub fn run(
     })?;
     dataset::write(&dir.join("dataset/dataset.safetensors"), &samples)?;
     let m = s.eval.scenes;
-    eval::run(base, &s.eval, &dir.join("eval"), &[], &|k| {
+    eval::run(base, &s.eval, &dir.join(s.eval.dir_name()), &[], &|k| {
         progress("held-out optimiser and random Θ", k, m)
     })?;
     progress("fit", 0, 1);
@@ -105,9 +105,13 @@ pub fn run(
             fingerprint: member.fingerprint()?,
         },
     ];
-    let rows = eval::run(base, &s.eval, &dir.join("eval"), &candidates, &|k| {
-        progress("held-out policies", k, m)
-    })?;
+    let rows = eval::run(
+        base,
+        &s.eval,
+        &dir.join(s.eval.dir_name()),
+        &candidates,
+        &|k| progress("held-out policies", k, m),
+    )?;
     Ok(Outcome {
         samples,
         curve,
@@ -240,6 +244,7 @@ pub fn report(o: &Outcome, s: &Settings, scene: &Scene, command: &str, machine: 
     let rows = &o.rows;
     let opt_ps = mean(&column(rows, "optimiser", |t| t.particle_substeps));
     let _ = writeln!(md, "## On {} held-out scenes\n", rows.len());
+    let _ = writeln!(md, "**Stream.** {}\n", s.eval.stream_text());
     let _ = writeln!(
         md,
         "Scenes drawn from a stream the dataset never used. The per-scene optimiser is `line` on all five parameters with its full budget of {} rollouts' compute (half on the scene's Θ and Sobol points, half on the root search of the dose along the adjoint's axis, a backward pass at its cost; the project's default method, compared with the others on [optimisation.md](optimisation.md)); *repacked* is its Θ run again on the same scene with another packing seed: the error of a policy that knew the optimiser's answer exactly but, like every policy here, not the grains' packing; the warm start is `line`'s root search from the distilled policy's Θ with a quarter of the budget ({}). A method's dose error is |target − delivered| of its rollout of lowest loss. Compute is in simulated particle-substeps (a rollout's steps × substeps × particles; scenes differ in their particles and substeps).\n",

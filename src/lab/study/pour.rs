@@ -75,14 +75,19 @@ pub struct Settings {
     pub tapped: Gravimetric,
     /// The policy study's dataset seed (the held-out stream is derived from it).
     pub seed: u64,
+    /// The first held-out draw (`EvalConfig::first_draw`): the pours run draws
+    /// `first_draw..first_draw + scenes`.
+    #[serde(default)]
+    pub first_draw: usize,
 }
 
-/// Runs (or resumes) the pours `g` of `base` for held-out draws `0..n` of the policy study's
-/// seed `seed`, in `dir`.
+/// Runs (or resumes) the pours `g` of `base` for held-out draws `first..first + n` of the
+/// policy study's seed `seed`, in `dir`.
 pub fn run(
     base: &Scene,
     g: &Gravimetric,
     seed: u64,
+    first: usize,
     n: usize,
     dir: &Path,
     progress: &(dyn Fn(usize) + Sync),
@@ -96,7 +101,7 @@ pub fn run(
     });
     crate::lab::policy::file::stamped(&dir.join("pour-config.json"), &stamp, "pours", "--out")?;
     let done = std::sync::atomic::AtomicUsize::new(0);
-    (0..n)
+    (first..first + n)
         .into_par_iter()
         .map(|j| {
             let row = crate::lab::policy::file::kept(
@@ -127,9 +132,9 @@ pub fn run(
         .collect()
 }
 
-/// The distilled policy's trials on the held-out draws, from the policy study in `policy_dir`
-/// (`None` when it has not run there).
-pub fn policy_trials(policy_dir: &Path) -> Option<Vec<Trial>> {
+/// The distilled policy's trials on held-out draws `first..first + n`, from the policy study in
+/// `policy_dir` (`None` when it has not run them all there).
+pub fn policy_trials(policy_dir: &Path, first: usize, n: usize) -> Option<Vec<Trial>> {
     let layout = crate::lab::policy::features::layout();
     let p = crate::lab::policy::net::Policy::load(
         &policy_dir.join("policy.safetensors"),
@@ -138,9 +143,15 @@ pub fn policy_trials(policy_dir: &Path) -> Option<Vec<Trial>> {
     )
     .ok()?;
     let fp = p.fingerprint().ok()?;
-    (0..)
-        .map(|j| policy_dir.join(format!("eval/scene-{j}/policy-{fp}.json")))
-        .take_while(|f| f.exists())
+    let eval = crate::lab::policy::eval::EvalConfig {
+        scenes: n,
+        budget: 0,
+        seed: 0,
+        first_draw: first,
+    }
+    .dir_name();
+    (first..first + n)
+        .map(|j| policy_dir.join(format!("{eval}/scene-{j}/policy-{fp}.json")))
         .map(|f| serde_json::from_str(&std::fs::read_to_string(f).ok()?).ok())
         .collect()
 }
@@ -168,7 +179,14 @@ pub fn report(
     let _ = writeln!(md, "Machine: {machine}.\n");
     let _ = writeln!(md, "**Why.** The distilled policy of [policy.md](policy.md) doses open loop: it chooses how deep to scoop, and the spoon empties what it took. What it takes depends on the grains' packing, which no policy sees, so even the per-scene optimiser's own Θ misses on a repacked powder (the policy page's *repacked* column says by how much). A lab robot meters against a balance instead. This study asks whether the spoon can: after the carry it tilts at the skill's angular speed up to {1}° and at {0}°/s past it, a load cell at the wrist reads what the bowl still holds, and the spoon turns back at the skill's angular speed as soon as the mass that has left it, plus {2} steps of its current outflow, reaches the dose (`powderlab::lab::policy::pour`). The spoon scoops at the family's deepest setting, so it holds the most there is to pour from; a dose above what it holds is poured whole. One rollout, no network.\n",
         s.pour.speed_deg, s.pour.fast_to_deg, s.pour.lead_steps);
-    let _ = writeln!(md, "**Draws.** The policy page's held-out draws: {} of `scenes/policy_dosing.ron` (dx = 5 mm) and the first {} again from `scenes/policy_dosing_fine.ron`, the same scenes at dx = 2.5 mm (2³ = 8× the particles at the same particles per cell).\n", coarse.len(), fine.len());
+    let stream = crate::lab::policy::eval::EvalConfig {
+        scenes: s.scenes,
+        budget: 0,
+        seed: s.seed,
+        first_draw: s.first_draw,
+    }
+    .stream_text();
+    let _ = writeln!(md, "**Draws.** The policy page's held-out draws: {} of `scenes/policy_dosing.ron` (dx = 5 mm) and the first {} again from `scenes/policy_dosing_fine.ron`, the same scenes at dx = 2.5 mm (2³ = 8× the particles at the same particles per cell). {stream}\n", coarse.len(), fine.len());
     let _ = writeln!(md, "| pour | draws | dose error (g), mean ± sd | median | within 0.1 g | after the turn (g), mean | rollout (s) | particle-substeps |");
     let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
     let faster_name = format!(
@@ -473,6 +491,7 @@ mod tests {
             faster_turn_back_deg: 720.0,
             tapped: Default::default(),
             seed: 0,
+            first_draw: 0,
         };
         report(
             &coarse,
