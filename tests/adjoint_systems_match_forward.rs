@@ -432,6 +432,7 @@ fn collider_world(rng: &mut Rng, soft_band: bool) -> (World, Entity, Entity) {
                 soft_band,
                 bounding_radius: f64::INFINITY,
                 particle_contact: true,
+                soft_particle_contact: false,
             },
             ColliderPose {
                 pose: Pose {
@@ -462,6 +463,7 @@ fn collider_world(rng: &mut Rng, soft_band: bool) -> (World, Entity, Entity) {
             soft_band: false,
             bounding_radius: f64::INFINITY,
             particle_contact: true,
+            soft_particle_contact: false,
         },
         ColliderPose {
             pose: Pose {
@@ -536,9 +538,22 @@ fn collider_contact_with(soft_band: bool) {
 
 #[test]
 fn particle_collision() {
+    particle_collision_with(false);
+}
+
+/// The soft projection (`soft_particle_contact`) on both colliders.
+#[test]
+fn particle_collision_soft() {
+    particle_collision_with(true);
+}
+
+fn particle_collision_with(soft: bool) {
     use powderlab::adjoint::particle_collision::ParticleCollisionInput;
     let mut rng = Rng(10);
     let (mut w, e, tool) = collider_world(&mut rng, false);
+    for mut c in w.query::<&mut Collider>().iter_mut(&mut w) {
+        c.soft_particle_contact = soft;
+    }
     // Particles just outside the paddle's faces and the cup's inner wall, moving into them.
     let x0: Vec<DVec3> = (0..N)
         .map(|_| DVec3::new(0.06, 0.06, 0.06) + rng.v() * 0.03)
@@ -567,7 +582,15 @@ fn particle_collision() {
     let ad = dotv(&w.get::<PositionAdj>(e).unwrap().0, &dxp)
         + dotv(&w.get::<VelocityAdj>(e).unwrap().0, &dv)
         + tool_adj_dot(&w, tool, &d);
-    check("particle_collision", fd, ad);
+    check(
+        if soft {
+            "particle_collision (soft)"
+        } else {
+            "particle_collision"
+        },
+        fd,
+        ad,
+    );
 }
 
 #[test]

@@ -10,7 +10,7 @@ use crate::adjoint::grid_collision::{
 };
 use crate::components::*;
 use crate::systems::particle_collision::{
-    particle_contact, project_particle, project_particle_adj, Reach, MARGIN_CELLS,
+    particle_contact, project_particle, project_particle_adj, soft_speed, Reach, MARGIN_CELLS,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -50,18 +50,22 @@ pub fn particle_collision_adjoint(
             let mut hits = [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
             let mut count = 0;
             for &(ci, c, pose, reach) in &view {
-                let Some((phi, n, vb)) = particle_contact(c, pose, &reach, xp, v, dt, margin)
+                let soft = soft_speed(c.soft_particle_contact, margin, dt);
+                let Some((phi, n, vb)) =
+                    particle_contact(c, pose, &reach, xp, v, dt, margin + soft * dt)
                 else {
                     continue;
                 };
                 hits[count] = (ci, v, phi, n, vb);
-                v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction);
+                v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction, soft);
                 count += 1;
             }
             for &(ci, vin, phi, n, vb) in hits[..count].iter().rev() {
                 let (c, pose) = (cs[ci].0, cs[ci].1);
-                let a =
-                    project_particle_adj(vin, phi, n, vb, dt, margin, c.contact, c.friction, *g);
+                let soft = soft_speed(c.soft_particle_contact, margin, dt);
+                let a = project_particle_adj(
+                    vin, phi, n, vb, dt, margin, c.contact, c.friction, soft, *g,
+                );
                 *g = a.v;
                 let h = world_hessian(&c.shape, pose, xp);
                 acc[ci].friction += a.mu;

@@ -104,10 +104,25 @@ pub fn run(a: Args) -> Result<()> {
                     "zero gradient: both below the round-off floor {:.1e}",
                     row.noise_floor
                 )
-            } else if let Some(e) = row.one_sided_rel_error {
+            } else if row.one_sided_rel_error.is_some() {
+                let [minus, plus] = row.one_sided;
+                let rel =
+                    |x: f64| (row.adjoint - x).abs() / row.adjoint.abs().max(x.abs()).max(1e-300);
+                let (side, e) = [
+                    ("the − side", rel(minus)),
+                    ("the + side", rel(plus)),
+                    ("the mean of the two sides", rel(0.5 * (minus + plus))),
+                ]
+                .into_iter()
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .expect("three candidates");
+                let follows = if e <= tol {
+                    format!("the adjoint follows {side} (to {e:.1e})")
+                } else {
+                    format!("the adjoint follows neither side nor their mean (nearest: {side}, {e:.1e} off), so it is not a one-sided derivative here")
+                };
                 format!(
-                    "kink at this point: one-sided differences {:.6e} (−) and {:.6e} (+); the adjoint matches the nearest of them and their mean to {e:.1e}",
-                    row.one_sided[0], row.one_sided[1]
+                    "kink at this point: one-sided differences {minus:.6e} (−) and {plus:.6e} (+); {follows}"
                 )
             } else {
                 String::new()

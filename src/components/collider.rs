@@ -36,6 +36,9 @@ pub struct Collider {
     pub bounding_radius: f64,
     /// Whether the particle-collision stage projects particles against this collider.
     pub particle_contact: bool,
+    /// Project softly (C¹ in the particle's velocity and distance) instead of with a kink
+    /// (`crate::systems::particle_collision`'s module docs).
+    pub soft_particle_contact: bool,
 }
 
 /// Current pose and the rigid velocity over the current substep.
@@ -195,6 +198,7 @@ mod tests {
             band: 0.0025,
             soft_band: true,
             particle_contact: true,
+            soft_particle_contact: false,
         };
         let pose = ColliderPose {
             pose: Pose {

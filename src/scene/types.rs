@@ -227,6 +227,11 @@ pub struct ColliderSpec {
     /// Project particles against this collider (thin walls). Default true.
     #[serde(default = "default_true")]
     pub particle_contact: bool,
+    /// Make that projection soft: C¹ where powder rests against the collider or slides along it,
+    /// so that gradients there are derivatives rather than one branch of a kink; particles
+    /// settle one clearance (a twentieth of a cell) farther out. Default false.
+    #[serde(default)]
+    pub soft_particle_contact: bool,
     /// Tools only.
     #[serde(default)]
     pub control: Option<ControlSpec>,

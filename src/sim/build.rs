@@ -316,5 +316,6 @@ fn collider(c: &crate::scene::ColliderSpec, i: usize, dx: f64) -> Collider {
         soft_band: c.soft_band,
         bounding_radius: c.shape.bounding_radius(),
         particle_contact: c.particle_contact,
+        soft_particle_contact: c.soft_particle_contact,
     }
 }

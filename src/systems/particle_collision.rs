@@ -20,6 +20,15 @@
 //! collider (`φ − margin > Δt·max(‖v_p‖, ‖v_p − v_b‖)`, which implies the inequality) are
 //! untouched.
 //!
+//! **Soft contact** (a collider's `soft_particle_contact`). The projection above is
+//! `v_n′ = v_min + max(0, x)` with `x = v_p·n − v_min`: a kink at `x = 0`, exactly where powder
+//! resting against a wall or sliding along it sits (its projected `v·n` is `v_min`), so the
+//! adjoint there follows one branch while a central difference averages both. The soft
+//! projection replaces `max(0, x)` by the C¹ blend `x + (x − τ)²/4τ` on `|x| < τ` (0 below,
+//! `x` above), with `τ = margin/Δt` ([`soft_speed`]): the same at `|x| ≥ τ`, never below
+//! `v_min` (so no particle comes closer than the hard projection lets it), and differentiable
+//! everywhere. A particle in lasting contact settles at `x = τ`, one margin farther out.
+//!
 //! Reads `Collider`, `ColliderPose`, `Position`; writes `Velocity`.
 
 use crate::components::*;
@@ -33,7 +42,31 @@ use rayon::prelude::*;
 /// the pour), and the margin absorbs that.
 pub const MARGIN_CELLS: f64 = 0.05;
 
-/// Velocity of a particle after the non-penetration projection (see the module docs).
+/// The soft projection's velocity band `τ` for a collider: `margin/Δt` (a normal speed that
+/// moves a particle by one clearance in a substep) when `soft`, else 0 (the hard projection).
+#[inline(always)]
+pub fn soft_speed(soft: bool, margin: f64, dt: f64) -> f64 {
+    if soft {
+        margin / dt
+    } else {
+        0.0
+    }
+}
+
+/// The push above `v_min` for `x = v·n − v_min < τ`, and its derivative: `(x + τ)²/4τ` on
+/// `−τ < x < τ`, 0 at or below `−τ` (and for the hard projection, `τ = 0`, at every `x < 0`).
+#[inline(always)]
+fn soft_push(x: f64, tau: f64) -> (f64, f64) {
+    if x <= -tau {
+        (0.0, 0.0)
+    } else {
+        let y = x + tau;
+        (y * y / (4.0 * tau), y / (2.0 * tau))
+    }
+}
+
+/// Velocity of a particle after the non-penetration projection (see the module docs); `soft`
+/// is the soft projection's band [`soft_speed`] (0: the hard projection).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn project_particle(
@@ -45,22 +78,25 @@ pub fn project_particle(
     margin: f64,
     mode: ContactMode,
     mu: f64,
+    soft: f64,
 ) -> DVec3 {
     let v_min = v_body.dot(n).max(0.0) + (margin - phi) / dt;
     let vn = v.dot(n);
-    if vn >= v_min {
+    if vn >= v_min + soft {
         return v;
     }
+    // The target normal speed: v_min itself for the hard projection.
+    let v_target = v_min + soft_push(vn - v_min, soft).0;
     let rel = v - v_body;
     let rel_t = rel - rel.dot(n) * n;
-    let dvn = v_min - vn;
+    let dvn = v_target - vn;
     let t_len = rel_t.length();
     let rel_t = match mode {
         ContactMode::Sticky => DVec3::ZERO,
         _ if mu > 0.0 && t_len > 0.0 => rel_t * (1.0 - mu * dvn / t_len).max(0.0),
         _ => rel_t,
     };
-    v_body + rel_t + n * (v_min - v_body.dot(n))
+    v_body + rel_t + n * (v_target - v_body.dot(n))
 }
 
 /// Adjoints of [`project_particle`]'s inputs.
@@ -86,6 +122,7 @@ pub fn project_particle_adj(
     margin: f64,
     mode: ContactMode,
     mu: f64,
+    soft: f64,
     g_out: DVec3,
 ) -> ProjectAdj {
     let vbn_plus = v_body.dot(n);
@@ -93,21 +130,23 @@ pub fn project_particle_adj(
     let v_min = vbn_plus.max(0.0) + (margin - phi) / dt;
     let vn = v.dot(n);
     let mut a = ProjectAdj::default();
-    if vn >= v_min {
+    if vn >= v_min + soft {
         a.v = g_out;
         return a;
     }
+    let (push, d_push) = soft_push(vn - v_min, soft);
+    let v_target = v_min + push;
     let rel = v - v_body;
     let rn = rel.dot(n);
     let rel_t = rel - rn * n;
-    let dvn = v_min - vn;
+    let dvn = v_target - vn;
     let t_len = rel_t.length();
-    // out = v_b + rel_t′ + n·(v_min − v_b·n)
+    // out = v_b + rel_t′ + n·(v_target − v_b·n)
     let vbn = v_body.dot(n);
     let gn_out = g_out.dot(n);
     a.v_body += g_out - n * gn_out;
-    a.n += g_out * (v_min - vbn) - v_body * gn_out;
-    let mut g_vmin = gn_out;
+    a.n += g_out * (v_target - vbn) - v_body * gn_out;
+    let mut g_target = gn_out;
     let mut g_dvn = 0.0;
     let g_rel_t = match mode {
         ContactMode::Sticky => DVec3::ZERO,
@@ -125,10 +164,12 @@ pub fn project_particle_adj(
         }
         _ => g_out,
     };
-    // dvn = v_min − v·n
-    g_vmin += g_dvn;
-    a.v -= n * g_dvn;
-    a.n -= v * g_dvn;
+    // dvn = v_target − v·n; v_target = v_min + push(v·n − v_min)
+    g_target += g_dvn;
+    let g_vmin = g_target * (1.0 - d_push);
+    let g_vn = g_target * d_push - g_dvn;
+    a.v += n * g_vn;
+    a.n += v * g_vn;
     // rel_t = rel − (rel·n)·n
     let nt = n.dot(g_rel_t);
     let g_rel = g_rel_t - n * nt;
@@ -164,7 +205,8 @@ pub fn clear_of(phi: f64, margin: f64, dt: f64, v: DVec3, v_body: DVec3) -> bool
 /// change the particle: out of the collider's reach ([`Reach`]), clear by the shape's cheap
 /// test ([`Shape::surely_clear`](crate::math::sdf::Shape::surely_clear), at the same threshold
 /// as [`clear_of`], so skipping on it is exact) or by `φ` itself. The stage and its adjoint both
-/// ask this, so they skip the same particles.
+/// ask this, so they skip the same particles. `margin` is the clearance plus, for a soft
+/// contact, `τ·Δt`: `φ − margin − τΔt > Δt·max(‖v‖, ‖v − v_b‖)` implies `v·n ≥ v_min + τ`.
 #[inline(always)]
 pub fn particle_contact(
     c: &Collider,
@@ -235,8 +277,12 @@ pub fn particle_collision(
     for (x, mut v) in &mut bodies {
         v.0.par_iter_mut().zip(x.0.par_iter()).for_each(|(v, &x)| {
             for (c, pose, reach) in &cs {
-                if let Some((phi, n, vb)) = particle_contact(c, pose, reach, x, *v, dt, margin) {
-                    *v = project_particle(*v, phi, n, vb, dt, margin, c.contact, c.friction);
+                let soft = soft_speed(c.soft_particle_contact, margin, dt);
+                let reach_margin = margin + soft * dt;
+                if let Some((phi, n, vb)) =
+                    particle_contact(c, pose, reach, x, *v, dt, reach_margin)
+                {
+                    *v = project_particle(*v, phi, n, vb, dt, margin, c.contact, c.friction, soft);
                 }
             }
         });
@@ -263,8 +309,11 @@ mod tests {
             ((seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
         };
         let (dt, margin) = (1e-3, 1e-5);
-        let mut checked = 0;
-        for k in 0..3000 {
+        let (mut checked, mut in_band) = (0, 0);
+        for k in 0..6000 {
+            // Every other sample with the soft projection, its band wide enough (0.3 m/s) for
+            // random velocities to fall in it often.
+            let soft = if k % 2 == 0 { 0.0 } else { 0.3 };
             let v = DVec3::new(r(), r(), r());
             let n = DVec3::new(r(), r(), r()).normalize();
             let vb = 0.2 * DVec3::new(r(), r(), r());
@@ -279,15 +328,25 @@ mod tests {
             let v_min = vb.dot(n).max(0.0) + (margin - phi) / dt;
             let rel = v - vb;
             let rel_t = rel - rel.dot(n) * n;
-            let raw = 1.0 - mu * (v_min - v.dot(n)) / rel_t.length();
-            if (v.dot(n) - v_min).abs() < 1e-3 || raw.abs() < 1e-3 || vb.dot(n).abs() < 1e-3 {
+            let x = v.dot(n) - v_min;
+            let v_target = v_min + if x < soft { soft_push(x, soft).0 } else { x };
+            let raw = 1.0 - mu * (v_target - v.dot(n)) / rel_t.length();
+            // Away from the switches: the hard kink at x = 0, the soft band's edges at ±τ
+            // (where the blend is C¹ but its curvature jumps), stick/slip and v_b·n = 0.
+            let near = |a: f64| (x - a).abs() < 1e-3;
+            if near(0.0) && soft == 0.0
+                || soft > 0.0 && (near(soft) || near(-soft))
+                || raw.abs() < 1e-3
+                || vb.dot(n).abs() < 1e-3
+            {
                 continue;
             }
             checked += 1;
+            in_band += usize::from(x.abs() < soft);
             let f = |v: DVec3, phi: f64, n: DVec3, vb: DVec3, mu: f64| {
-                project_particle(v, phi, n, vb, dt, margin, mode, mu).dot(w)
+                project_particle(v, phi, n, vb, dt, margin, mode, mu, soft).dot(w)
             };
-            let a = project_particle_adj(v, phi, n, vb, dt, margin, mode, mu, w);
+            let a = project_particle_adj(v, phi, n, vb, dt, margin, mode, mu, soft, w);
             let close = |fd: f64, ad: f64, what: &str| {
                 assert!(
                     (fd - ad).abs() <= TOL * fd.abs().max(ad.abs()).max(FLOOR),
@@ -313,7 +372,8 @@ mod tests {
                     "v_body",
                 );
             }
-            let h = 1e-9;
+            // φ moves v_min by h/Δt: 1e-5 m/s, well inside the switches skipped above.
+            let h = 1e-8;
             close(
                 (f(v, phi + h, n, vb, mu) - f(v, phi - h, n, vb, mu)) / (2.0 * h),
                 a.phi,
@@ -325,7 +385,82 @@ mod tests {
                 "mu",
             );
         }
-        assert!(checked > 1000, "{checked}");
+        assert!(
+            checked > 2000 && in_band > 100,
+            "{checked}, {in_band} in the soft band"
+        );
+    }
+
+    /// Powder resting against a wall sits exactly at `v·n = v_min`. There the hard projection's
+    /// adjoint takes one branch while the central difference averages the two; the soft one is
+    /// differentiable, and its adjoint is the central difference.
+    #[test]
+    fn at_rest_against_a_wall_only_the_soft_projection_is_differentiable() {
+        let (dt, margin, n) = (1e-3, 1e-5, DVec3::Y);
+        // At the clearance, at rest: v_min = 0 = v·n.
+        let (v, phi, w) = (
+            DVec3::new(0.01, 0.0, 0.0),
+            margin,
+            DVec3::new(0.3, 1.0, 0.2),
+        );
+        let eps = 1e-7;
+        for (soft, differentiable) in [(0.0, false), (soft_speed(true, margin, dt), true)] {
+            let f = |v: DVec3| {
+                project_particle(
+                    v,
+                    phi,
+                    n,
+                    DVec3::ZERO,
+                    dt,
+                    margin,
+                    ContactMode::Slip,
+                    0.3,
+                    soft,
+                )
+                .dot(w)
+            };
+            let fd = (f(v + n * eps) - f(v - n * eps)) / (2.0 * eps);
+            let a = project_particle_adj(
+                v,
+                phi,
+                n,
+                DVec3::ZERO,
+                dt,
+                margin,
+                ContactMode::Slip,
+                0.3,
+                soft,
+                w,
+            );
+            let agrees = (fd - a.v.y).abs() <= 1e-6 * fd.abs().max(1.0);
+            assert_eq!(
+                agrees, differentiable,
+                "soft {soft}: fd {fd}, adjoint {}",
+                a.v.y
+            );
+        }
+    }
+
+    /// The soft projection never lets a particle closer than the hard one does: its normal
+    /// speed is at least `v_min`, and it leaves every particle with `v·n ≥ v_min + τ` alone.
+    #[test]
+    fn the_soft_projection_keeps_the_clearance() {
+        let mut rng = crate::util::SplitMix64(5);
+        let mut r = || rng.uniform_in(-1.0, 1.0);
+        let (dt, margin) = (1e-3, 1e-5);
+        let soft = 0.2;
+        for _ in 0..20000 {
+            let v = DVec3::new(r(), r(), r());
+            let n = DVec3::new(r(), r(), r()).normalize();
+            let vb = 0.3 * DVec3::new(r(), r(), r());
+            let phi = 1e-3 * r();
+            let v_min = vb.dot(n).max(0.0) + (margin - phi) / dt;
+            let out = project_particle(v, phi, n, vb, dt, margin, ContactMode::Slip, 0.4, soft);
+            assert!(out.dot(n) >= v_min - 1e-12, "{out} below {v_min}");
+            if v.dot(n) >= v_min + soft {
+                assert_eq!(out, v);
+            }
+        }
     }
 
     #[test]
@@ -342,6 +477,7 @@ mod tests {
             1e-5,
             ContactMode::Separate,
             0.0,
+            0.0,
         );
         assert!((1e-4 + dt * v.y - 1e-5).abs() < 1e-15);
         assert_eq!(v.x, 0.2);
@@ -355,6 +491,7 @@ mod tests {
             1e-5,
             ContactMode::Separate,
             0.1,
+            0.0,
         );
         assert!((vf.x - (0.2 - 0.1 * 0.91)).abs() < 1e-12);
         // A particle that cannot reach the wall is untouched.
@@ -368,7 +505,8 @@ mod tests {
                 dt,
                 1e-5,
                 ContactMode::Separate,
-                0.5
+                0.5,
+                0.0
             ),
             w
         );
@@ -394,7 +532,18 @@ mod tests {
             ][k % 3];
             if clear_of(phi, margin, dt, v, vb) {
                 skipped += 1;
-                assert_eq!(project_particle(v, phi, n, vb, dt, margin, mode, 0.4), v);
+                assert_eq!(
+                    project_particle(v, phi, n, vb, dt, margin, mode, 0.4, 0.0),
+                    v
+                );
+            }
+            // The soft projection's skip test adds τ·Δt to the clearance.
+            let soft = 0.2;
+            if clear_of(phi, margin + soft * dt, dt, v, vb) {
+                assert_eq!(
+                    project_particle(v, phi, n, vb, dt, margin, mode, 0.4, soft),
+                    v
+                );
             }
         }
         assert!(skipped > 1000, "{skipped}");
