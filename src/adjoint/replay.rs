@@ -14,6 +14,7 @@ use crate::sim::{run_in, Simulation};
 use crate::systems::{self, new_schedule, Stage, SubstepPlan};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
+use rayon::prelude::*;
 use std::time::Instant;
 
 type StartQuery<'a> = (
@@ -162,7 +163,9 @@ impl Replay {
     ) -> Result<(), AdjointError> {
         for (j, record) in self.records.iter_mut().enumerate().rev() {
             let t = Instant::now();
-            record.exchange(&mut sim.world, &self.bodies, &mut self.record_query, false);
+            // Restoring rebuilds the P2G affine term in parallel: on the simulation's workers.
+            let (world, query, bodies) = (&mut sim.world, &mut self.record_query, &self.bodies);
+            run_in(&sim.pool, || record.exchange(world, bodies, query, false));
             timing.add("record substep", t.elapsed().as_secs_f64());
             for (stage, s) in self.adjoint.iter_mut() {
                 let t = Instant::now();
@@ -317,7 +320,9 @@ struct BodyRecord {
     svd: SvdFactors,
     /// What the material update saved for its adjoint.
     saved: Vec<crate::materials::Saved>,
-    affine: Vec<DMat3>,
+    /// The principal stress `τ_p`, from which the P2G affine term is rebuilt (24 bytes a
+    /// particle instead of 72).
+    stress: Vec<DVec3>,
     order: ScatterOrder,
 }
 
@@ -328,7 +333,7 @@ type RecordQuery<'a> = (
     &'a mut ParticleCollisionInput,
     &'a mut SvdFactors,
     &'a mut UpdateSaved,
-    &'a mut P2gAffine,
+    (&'a mut P2gAffine, &'a mut PrincipalStress, &'a Body),
     &'a mut ScatterOrder,
 );
 
@@ -349,7 +354,7 @@ impl SubstepRecord {
                         v: vec![DMat3::ZERO; n],
                     },
                     saved: vec![[DVec3::ZERO; 3]; n],
-                    affine: vec![DMat3::ZERO; n],
+                    stress: vec![DVec3::ZERO; n],
                     order: ScatterOrder::default(),
                 }
             })
@@ -372,9 +377,14 @@ impl SubstepRecord {
         q: &mut QueryState<RecordQuery>,
         save: bool,
     ) {
+        let (dt, dx) = (
+            world.resource::<SimParams>().dt_sub,
+            world.resource::<Grid>().dx,
+        );
         for (&e, b) in bodies.iter().zip(&mut self.bodies) {
-            let (mut x, mut v, mut start, mut pc, mut svd, mut saved, mut affine, mut order) =
+            let (mut x, mut v, mut start, mut pc, mut svd, mut saved, stress, mut order) =
                 q.get_mut(world, e).expect("a body entity");
+            let (mut affine, mut tau, body) = stress;
             if save {
                 b.v_end.clone_from(&v.0);
             } else {
@@ -392,7 +402,23 @@ impl SubstepRecord {
                 std::mem::swap(&mut svd.v, &mut b.svd.v);
             }
             std::mem::swap(&mut saved.0, &mut b.saved);
-            std::mem::swap(&mut affine.0, &mut b.affine);
+            std::mem::swap(&mut tau.0, &mut b.stress);
+            if !save {
+                // The P2G affine term as the constitutive stage computed it, to the bit.
+                let coef = crate::systems::constitutive::stress_coef(dt, body.particle_volume, dx);
+                let mass = body.particle_mass;
+                affine
+                    .0
+                    .par_iter_mut()
+                    .zip(
+                        svd.u
+                            .par_iter()
+                            .zip(tau.0.par_iter().zip(start.c.par_iter())),
+                    )
+                    .for_each(|(a, (&u, (&t, &c)))| {
+                        *a = crate::systems::constitutive::p2g_affine(u, t, c, coef, mass);
+                    });
+            }
             std::mem::swap(&mut *order, &mut b.order);
         }
         if save {
@@ -414,10 +440,11 @@ impl SubstepRecord {
     /// Bytes held by one record of a world.
     pub(crate) fn bytes(particles: usize, nodes: usize) -> usize {
         // start (x, v, C, F), final v, collision input, U, σ, V, the material's saved update,
-        // affine, order; grid m, p, v and the two contact inputs. The trial F is not kept: no
-        // adjoint stage reads it (the SVD's adjoint works from U, σ, V). The grid is an upper
-        // bound: a record packs the active spans only (`PackedGrid`).
-        particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 24 + 72 + 72 + 72 + 4) + nodes * (8 + 4 * 24)
+        // the principal stress (the affine term is rebuilt from it), order; grid m, p, v and the
+        // two contact inputs. The trial F is not kept: no adjoint stage reads it (the SVD's
+        // adjoint works from U, σ, V). The grid is an upper bound: a record packs the active
+        // spans only (`PackedGrid`).
+        particles * (2 * 24 + 2 * 72 + 24 + 24 + 72 + 24 + 72 + 72 + 24 + 4) + nodes * (8 + 4 * 24)
     }
 }
 

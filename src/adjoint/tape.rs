@@ -373,6 +373,7 @@ fn gradient_in_pool(
             ParticleCollisionInput,
             MaterialAdj,
             UpdateSaved,
+            PrincipalStress,
         )>();
     }
     sim.world.remove_resource::<GridAdj>();
@@ -443,8 +444,10 @@ fn install_adjoint_state(world: &mut World, g_x: Vec<Vec<DVec3>>) -> (Vec<Entity
             SubstepStart::zeroed(n),
             ParticleCollisionInput::default(),
             MaterialAdj::default(),
-            // From here on the constitutive stage saves its update for the adjoint.
+            // From here on the constitutive stage saves its update (and its stress, which the
+            // records keep instead of the P2G affine term) for the adjoint.
             UpdateSaved(vec![[DVec3::ZERO; 3]; n]),
+            PrincipalStress(vec![DVec3::ZERO; n]),
         ));
     }
     let mut by_index: Vec<(usize, Entity)> = ents.iter().map(|&(e, bi, _)| (bi, e)).collect();

@@ -58,6 +58,13 @@ pub struct SvdFactors {
 #[derive(Component, Clone, Debug, Default)]
 pub struct UpdateSaved(pub Vec<crate::materials::Saved>);
 
+/// The principal Kirchhoff stress `τ_p` of each particle's update. Present only while a backward
+/// pass recomputes (inserted with [`UpdateSaved`]): the substep records keep these 24 bytes per
+/// particle instead of the 72-byte [`P2gAffine`], which they rebuild from it, `U` and `C` with
+/// the forward's own function (`systems::constitutive::p2g_affine`), to the bit. Scratch.
+#[derive(Component, Clone, Debug, Default)]
+pub struct PrincipalStress(pub Vec<DVec3>);
+
 /// MLS-MPM affine matrix scattered by P2G: `m_p·C_p − Δt·V_p·(4/dx²)·τ_p`. Scratch.
 #[derive(Component, Clone, Debug, Default)]
 pub struct P2gAffine(pub Vec<DMat3>);

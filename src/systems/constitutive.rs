@@ -20,6 +20,19 @@ pub fn compose(u: DMat3, d: DVec3, w: DMat3) -> DMat3 {
     DMat3::from_cols(u.x_axis * d.x, u.y_axis * d.y, u.z_axis * d.z) * w.transpose()
 }
 
+/// The P2G stress factor `−Δt·V_p·4/dx²` of a body.
+#[inline(always)]
+pub fn stress_coef(dt: f64, particle_volume: f64, dx: f64) -> f64 {
+    -dt * particle_volume * 4.0 * (1.0 / (dx * dx))
+}
+
+/// The MLS-MPM affine term `A_p = m_p·C_p + coef·U·diag(τ_p)·Uᵀ` (`coef` from [`stress_coef`]).
+/// The backward pass rebuilds `A_p` with this same function from what it recorded.
+#[inline(always)]
+pub fn p2g_affine(u: DMat3, tau_p: DVec3, c: DMat3, coef: f64, mass: f64) -> DMat3 {
+    compose(u, tau_p, u) * coef + c * mass
+}
+
 #[allow(clippy::type_complexity)]
 pub fn constitutive_model<M: Material>(
     params: Res<SimParams>,
@@ -34,47 +47,57 @@ pub fn constitutive_model<M: Material>(
         &mut DeformationGradient,
         &mut P2gAffine,
         Option<&mut Hardening>,
-        Option<&mut UpdateSaved>,
+        Option<(&mut UpdateSaved, &mut PrincipalStress)>,
     )>,
 ) {
     let dt = params.dt_sub;
-    let inv_dx2 = 1.0 / (grid.dx * grid.dx);
     for (mat, body, svd, ft, c, mut f, mut aff, hard, saved) in &mut bodies {
-        let stress_coef = -dt * body.particle_volume * 4.0 * inv_dx2;
+        let coef = stress_coef(dt, body.particle_volume, grid.dx);
         let mass = body.particle_mass;
         let watch = FiniteWatch::default();
         let update = |i: usize,
                       q: &mut f64,
-                      saved: Option<&mut crate::materials::Saved>,
+                      saved: Option<(&mut crate::materials::Saved, &mut DVec3)>,
                       f_out: &mut DMat3,
                       a_out: &mut DMat3| {
             let (s_new, tau_p) = match saved {
-                Some(sv) => mat.update_saving(svd.s[i], q, sv),
+                Some((sv, tau_out)) => {
+                    let r = mat.update_saving(svd.s[i], q, sv);
+                    *tau_out = r.1;
+                    r
+                }
                 None => mat.update(svd.s[i], q),
             };
             *f_out = match s_new {
                 Some(s) => compose(svd.u[i], s, svd.v[i]),
                 None => ft.0[i],
             };
-            let tau = compose(svd.u[i], tau_p, svd.u[i]);
-            *a_out = tau * stress_coef + c.0[i] * mass;
+            *a_out = p2g_affine(svd.u[i], tau_p, c.0[i], coef, mass);
             watch.check(f_out.is_finite() && a_out.is_finite());
         };
-        if let Some(sv) = &saved {
+        if let Some((sv, st)) = &saved {
             // The zip below would silently skip particles past a short buffer.
             assert_eq!(sv.0.len(), svd.s.len(), "UpdateSaved sized for its body");
+            assert_eq!(
+                st.0.len(),
+                svd.s.len(),
+                "PrincipalStress sized for its body"
+            );
         }
         let fa = f.0.par_iter_mut().zip(aff.0.par_iter_mut()).enumerate();
         match (hard, saved) {
-            (Some(mut h), Some(mut sv)) => fa
-                .zip(h.0.par_iter_mut().zip(sv.0.par_iter_mut()))
-                .for_each(|((i, (fo, ao)), (q, s))| update(i, q, Some(s), fo, ao)),
+            (Some(mut h), Some((mut sv, mut st))) => fa
+                .zip(
+                    h.0.par_iter_mut()
+                        .zip(sv.0.par_iter_mut().zip(st.0.par_iter_mut())),
+                )
+                .for_each(|((i, (fo, ao)), (q, (s, t)))| update(i, q, Some((s, t)), fo, ao)),
             (Some(mut h), None) => fa
                 .zip(h.0.par_iter_mut())
                 .for_each(|((i, (fo, ao)), q)| update(i, q, None, fo, ao)),
-            (None, Some(mut sv)) => fa
-                .zip(sv.0.par_iter_mut())
-                .for_each(|((i, (fo, ao)), s)| update(i, &mut 0.0, Some(s), fo, ao)),
+            (None, Some((mut sv, mut st))) => fa
+                .zip(sv.0.par_iter_mut().zip(st.0.par_iter_mut()))
+                .for_each(|((i, (fo, ao)), (s, t))| update(i, &mut 0.0, Some((s, t)), fo, ao)),
             (None, None) => fa.for_each(|(i, (fo, ao))| update(i, &mut 0.0, None, fo, ao)),
         }
         for (field, idx) in [
