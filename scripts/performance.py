@@ -24,6 +24,7 @@ TARGET = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", str(ROOT / "target")))
 LEVERS = [
     ("contracted transfers", "8a93fce", "ce5e740", "forward"),
     ("grid records packed to the active spans", "3ffff68", "2e24448", "memory"),
+    ("records keep the principal stress, not the P2G affine term", "7bb2c24", "9e224e2", "memory"),
 ]
 BEFORE = "5b8b95d"  # the build before this page's levers
 
