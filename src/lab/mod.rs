@@ -13,6 +13,7 @@
 //! - [`study`]: the studies whose pages are `docs/results/`;
 //! - [`journal`]: the one append-and-replay store of every resumable command;
 //! - [`chart`]: the one chart setup of every figure;
+//! - [`streams`]: the design and verdict streams of seeds and draws;
 //! - [`stats`]: the statistics every page uses (mean ± sample sd, the paired tests, bootstrap).
 //!
 //! The simulator (`scene`, `sim`, `systems`, `adjoint`, `components`, `materials`, `math`,
@@ -29,5 +30,6 @@ pub mod plan;
 pub mod policy;
 pub mod render;
 pub mod stats;
+pub mod streams;
 pub mod study;
 pub mod validate;

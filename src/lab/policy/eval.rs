@@ -114,14 +114,15 @@ impl EvalConfig {
 
     /// The page's sentence on which draws these are.
     pub fn stream_text(&self) -> String {
-        let (first, last) = (self.first_draw, self.first_draw + self.scenes.max(1) - 1);
-        if first >= DESIGN_DRAWS {
-            format!("Held-out draws {first}–{last}: a verdict stream. No setting was chosen on them; the policy's design (its knob head, the dataset's size, the ensemble) and the pour variants were chosen after seeing scores on draws 0–{}, the design draws.", DESIGN_DRAWS - 1)
-        } else if last < DESIGN_DRAWS {
-            format!("Held-out draws {first}–{last}: the design draws. The policy's design (its knob head, the dataset's size, the ensemble) and the pour variants were chosen after seeing scores on them, so the comparisons below are not tests on fresh data; those come from `--first-draw {DESIGN_DRAWS}`.")
-        } else {
-            format!("Held-out draws {first}–{last}: draws 0–{} of them chose the policy's design and the rest did not, a mixed stream.", DESIGN_DRAWS - 1)
+        crate::lab::streams::Stream {
+            noun: "Held-out draws",
+            first: self.first_draw,
+            count: self.scenes,
+            design: DESIGN_DRAWS,
+            chosen: "the policy's design (its knob head, the dataset's size, the ensemble) and the pour variants",
+            flag: "--first-draw",
         }
+        .text()
     }
 
     /// The warm start's budget: a quarter of the full one, rounded up.

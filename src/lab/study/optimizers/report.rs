@@ -21,18 +21,18 @@ pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {
     );
     let _ = writeln!(s, "Regenerate: `{}`  ", o.command);
     let _ = writeln!(s, "Machine: {}.\n", machine());
-    let (first, last) = (o.first_seed, o.first_seed + o.seeds.max(1) - 1);
-    let design = crate::lab::optim::DESIGN_SEEDS;
+    let stream = crate::lab::streams::Stream {
+        noun: "Seeds",
+        first: o.first_seed,
+        count: o.seeds,
+        design: crate::lab::optim::DESIGN_SEEDS,
+        chosen: "the optimisers' settings (line's bracket and its 1 % closing width, `line` as `optimize`'s default)",
+        flag: "--first-seed",
+    };
     let _ = writeln!(
         s,
-        "**Stream.** Seeds {first}–{last} (the CSV numbers them from 0). {}\n",
-        if first >= design {
-            format!("A verdict stream: no setting was chosen on these seeds. The optimisers' settings (line's bracket and its 1 % closing width, `line` as `optimize`'s default) were chosen on seeds 0–{}, the design stream.", design - 1)
-        } else if last < design {
-            format!("The design stream: the optimisers' settings (line's bracket and its 1 % closing width, `line` as `optimize`'s default) were chosen on these seeds, so the verdicts below are not tests on fresh data; those come from `--first-seed {design}`.")
-        } else {
-            format!("Seeds 0–{} of these chose the optimisers' settings (the design stream) and the rest did not: a mixed stream, not a verdict on fresh data.", design - 1)
-        }
+        "**Stream.** {} The CSV numbers the seeds from 0.\n",
+        stream.text()
     );
     let (b, c) = (o.budget, crate::lab::optim::report::BACKWARD_COST);
     let has = |ms: &[Method]| ms.iter().any(|m| o.methods.contains(m));
