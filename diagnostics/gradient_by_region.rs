@@ -62,26 +62,26 @@ fn main() -> anyhow::Result<()> {
     }
     let p = Problem::new(Scene::load(&a[1])?, 1 << 30)?;
     let h: f64 = a[2].parse()?;
-    let Loss::SumDistance(target) = p.loss else {
+    let Loss::SumDistance(target) = p.loss() else {
         anyhow::bail!("the scene's loss is not eq. 5 (SumDistance)");
     };
-    let task = p.scene.task.as_ref().expect("checked in Problem::new");
+    let task = p.scene().task.as_ref().expect("checked in Problem::new");
     let target_cup = p
-        .scene
+        .scene()
         .target_region()
         .ok_or_else(|| anyhow::anyhow!("the target {} is not a cup", task.target))?;
     let source_cup = p
-        .scene
+        .scene()
         .colliders
         .iter()
         .find(|c| c.name != task.target && matches!(c.shape, Shape::Cup { .. }))
-        .and_then(|c| p.scene.cup_region(&c.name))
+        .and_then(|c| p.scene().cup_region(&c.name))
         .ok_or_else(|| anyhow::anyhow!("no source cup"))?;
     let floor_y = source_cup
         .pose
         .to_world(DVec3::new(0.0, source_cup.floor, 0.0))
         .y
-        + FLOOR_BAND_CELLS * p.scene.simulation.dx;
+        + FLOOR_BAND_CELLS * p.scene().simulation.dx;
     // The final positions of each body's grains (grain j of a body is the same particle in
     // every rollout).
     let final_positions = |sim: &mut powderlab::sim::Simulation| -> Vec<Vec<DVec3>> {
@@ -95,7 +95,7 @@ fn main() -> anyhow::Result<()> {
         let (centre, shifted) = rayon::join(
             || -> anyhow::Result<_> {
                 let mut sim = p.simulation(t0, false)?;
-                let (_, whole) = p.skill_gradient(&mut sim, &p.loss)?;
+                let (_, whole) = p.skill_gradient(&mut sim, p.loss())?;
                 let (_, indicator) = p.indicator(&mut sim);
                 Ok((whole, final_positions(&mut sim), indicator))
             },
@@ -143,7 +143,7 @@ fn main() -> anyhow::Result<()> {
         let mut counts = [0usize; 4];
         xs.iter().flatten().for_each(|x| counts[group(*x)] += 1);
         // Eq. 5's own ∂L/∂x at Θ, (x_j − t)/‖x_j − t‖, kept for one group's grains at a time.
-        let (_, dl_dx) = p.loss.eval(&xs);
+        let (_, dl_dx) = p.loss().eval(&xs);
         let parts = (0..GROUPS.len())
             .into_par_iter()
             .map(|gi| {

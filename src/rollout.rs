@@ -113,9 +113,10 @@ pub struct Variant<'a> {
 /// rollouts that change the skill's Θ, a tool's controls or the [`Variant`].
 #[derive(Clone, Debug)]
 pub struct Prepared {
-    pub scene: Scene,
+    /// Read through [`Prepared::scene`]: the build is of this scene, so it cannot change alone.
+    scene: Scene,
     /// The scene's loss.
-    pub loss: Loss,
+    loss: Loss,
     build: Build,
 }
 
@@ -207,6 +208,16 @@ pub fn run(scene: &Scene, req: &Request) -> anyhow::Result<Rollout> {
 }
 
 impl Prepared {
+    /// The scene, as checked and built.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+
+    /// The scene's loss.
+    pub fn loss(&self) -> &Loss {
+        &self.loss
+    }
+
     /// Checks and builds `scene`.
     pub fn new(scene: Scene) -> Result<Prepared, SceneError> {
         Ok(Prepared {

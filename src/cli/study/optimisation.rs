@@ -26,7 +26,7 @@ pub(super) fn landscape_cmd(a: args::Landscape) -> Result<()> {
         powderlab::scene::TargetValue::Particles(_) => "particles",
         powderlab::scene::TargetValue::Grams(_) => "g",
     };
-    let threads = a.run.threads.unwrap_or(problem.scene.simulation.threads);
+    let threads = a.run.threads.unwrap_or(problem.scene().simulation.threads);
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build_global()

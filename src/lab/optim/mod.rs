@@ -466,7 +466,7 @@ fn record_best(
         return Ok(());
     };
     let mut sim = problem.simulation(best.theta, false)?;
-    let mut rec = crate::record::Recorder::for_scene(path, &mut sim.world, &problem.scene)?;
+    let mut rec = crate::record::Recorder::for_scene(path, &mut sim.world, problem.scene())?;
     for ((m, seed), list) in records {
         let base = format!("optimize/{}/seed{seed}", m.name());
         rec.series(

@@ -13,15 +13,14 @@ use anyhow::Context;
 /// ([`crate::rollout::Prepared`]), which it calls for every Θ.
 #[derive(Clone, Debug)]
 pub struct Problem {
-    pub scene: Scene,
     /// Index of the skill-driven tool in `scene.colliders`.
     pub tool: usize,
-    pub loss: Loss,
     /// Target amount of the indicator metric.
     pub target: TargetValue,
     /// Memory budget of one backward pass's tape (bytes).
     pub tape_budget: usize,
-    /// The scene checked and built once; every rollout reuses it with its own controls.
+    /// The scene checked and built once, with its loss: every rollout reuses it with its own
+    /// controls, and the problem's scene and loss are its ([`Problem::scene`], [`Problem::loss`]).
     prepared: Prepared,
 }
 
@@ -57,15 +56,23 @@ impl Problem {
                 "Some((target: \"cup\", target_value: Particles(n) | Grams(g))): the indicator needs a target",
             )));
         };
-        let prepared = Prepared::new(scene.clone())?;
+        let prepared = Prepared::new(scene)?;
         Ok(Problem {
-            loss: prepared.loss.clone(),
             prepared,
-            scene,
             tool,
             target: task.target_value,
             tape_budget,
         })
+    }
+
+    /// The scene, as checked and built.
+    pub fn scene(&self) -> &Scene {
+        self.prepared.scene()
+    }
+
+    /// The scene's loss.
+    pub fn loss(&self) -> &Loss {
+        self.prepared.loss()
     }
 
     /// The same problem with its bodies starting from `states` (see
@@ -85,7 +92,7 @@ impl Problem {
 
     /// The Θ written in the scene.
     pub fn scene_theta(&self) -> Theta {
-        match &self.scene.colliders[self.tool].control {
+        match &self.scene().colliders[self.tool].control {
             Some(ControlSpec::Skill(sk)) => sk.theta,
             _ => unreachable!("checked in Problem::new"),
         }
@@ -192,7 +199,7 @@ impl Problem {
             ..Default::default()
         };
         let (o, r) = self.rollout(theta, with_grad, &v)?;
-        let name = &self.scene.colliders[self.tool].name;
+        let name = &self.scene().colliders[self.tool].name;
         let grad = r.gradients.as_ref().map(|g| {
             residual.apply_adj(g.tool_controls(name).expect("the skill tool has controls"))
         });
@@ -242,7 +249,7 @@ impl Problem {
 
     /// Transported amount and indicator of the simulation's current state.
     pub fn indicator(&self, sim: &mut Simulation) -> (f64, f64) {
-        let task = self.scene.task.as_ref().expect("checked in Problem::new");
+        let task = self.scene().task.as_ref().expect("checked in Problem::new");
         crate::metrics::task_indicator(&mut sim.world, task)
     }
 

@@ -300,7 +300,7 @@ pub fn summary(
         v.into_iter().map(|e| e.1.to_string()).collect::<Vec<_>>()
     };
     json!({
-        "scene": problem.scene.path.display().to_string(),
+        "scene": problem.scene().path.display().to_string(),
         "selection": SELECTION,
         "backward_cost_planned": BACKWARD_COST,
         "backward_cost_measured": measured_backward_cost(all),

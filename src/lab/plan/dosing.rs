@@ -321,7 +321,7 @@ impl Dosing {
             .with_context(|| format!("scoop from node {node} at Θ = {theta:?}"))?;
         let states = sim.body_states();
         let xs: Vec<_> = states.iter().map(|b| b.x.clone()).collect();
-        let loss = p.loss.eval(&xs).0;
+        let loss = p.loss().eval(&xs).0;
         let delivered_g = self.mass_in(&states, &self.target);
         let work = (sim.particle_count() * steps * sim.params().substeps) as f64;
         self.particle_substeps += work;

@@ -208,7 +208,7 @@ pub fn hindsight(
             Sample {
                 scene,
                 copy,
-                features: features(spec, &problem.scene, &draw, &x, 0.0),
+                features: features(spec, problem.scene(), &draw, &x, 0.0),
                 draw,
                 theta: *theta,
                 loss: 0.0,

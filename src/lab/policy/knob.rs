@@ -38,7 +38,7 @@ pub const CANONICAL: Theta = Theta([0.0, 0.2, 0.0, 0.0, 0.5]);
 /// The normalised transport distance that carries the spoon over the target cup: the cup
 /// distance mapped into the skill's range, clamped into the box.
 pub fn transport(problem: &Problem, d: &Draw) -> f64 {
-    match &problem.scene.colliders[problem.tool].control {
+    match &problem.scene().colliders[problem.tool].control {
         Some(ControlSpec::Skill(sk)) => {
             let (lo, hi) = sk.ranges.transport_distance;
             (2.0 * (d.cup_distance - lo) / (hi - lo) - 1.0).clamp(-1.0, 1.0)

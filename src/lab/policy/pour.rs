@@ -144,15 +144,15 @@ pub fn rollout(
 ) -> anyhow::Result<(Outcome, PourTrace)> {
     let t0 = Instant::now();
     g.validate()?;
-    let tool = &problem.scene.colliders[problem.tool];
+    let tool = &problem.scene().colliders[problem.tool];
     let Some(ControlSpec::Skill(sk)) = &tool.control else {
         unreachable!("Problem::new checks for a skill tool")
     };
     let reach = match tool.shape {
-        Shape::Spoon { bowl_radius, .. } => bowl_radius + problem.scene.simulation.dx,
+        Shape::Spoon { bowl_radius, .. } => bowl_radius + problem.scene().simulation.dx,
         _ => anyhow::bail!("the gravimetric pour needs a spoon; the tool is not one"),
     };
-    let (dt, settle) = (problem.scene.simulation.dt, sk.settle_steps);
+    let (dt, settle) = (problem.scene().simulation.dt, sk.settle_steps);
     let axis = glam::DVec3::from(sk.pour_axis).normalize();
     let w_fast = sk.angular_speed_deg.to_radians() * dt;
     let w_back = g.turn_back_deg.map_or(w_fast, |v| v.to_radians() * dt);
@@ -213,7 +213,7 @@ pub fn rollout(
     sim.run(settle, |_| {}).with_context(context)?;
     sim.horizon = steps + settle;
     let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
-    let loss = problem.loss.eval(&xs).0;
+    let loss = problem.loss().eval(&xs).0;
     let (transported, indicator) = problem.indicator(&mut sim);
     Ok((
         Outcome {

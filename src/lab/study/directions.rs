@@ -121,7 +121,7 @@ fn run_one(problem: &Problem, kind: Kind, theta: Theta) -> anyhow::Result<Rollou
             (carried, o.grad)
         }
         Kind::Eq5 | Kind::Dosing => {
-            let mut scene = problem.scene.clone();
+            let mut scene = problem.scene().clone();
             scene.loss = match kind {
                 Kind::Eq5 => None,
                 _ => Some(LossSpec::Dosing {

@@ -82,7 +82,7 @@ pub fn run(
     use rayon::prelude::*;
     crate::util::create_output_dir(dir, "--out")?;
     // The rollouts kept in `dir` are reused only for the same parsed scene.
-    let hash = problem.scene.fingerprint();
+    let hash = problem.scene().fingerprint();
     let stamp = dir.join("scene.fnv1a");
     match std::fs::read_to_string(&stamp) {
         Ok(old) if old.trim() != hash => anyhow::bail!(

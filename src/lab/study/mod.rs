@@ -438,7 +438,7 @@ fn run_transport_config(cfg: &Config) -> anyhow::Result<ConfigResult> {
     let particles = fwd.particles;
     // The eq. 5 loss sums over particles, whose number changes with the resolution: compare it
     // per particle (the mean distance to the target).
-    let per = match problem.loss {
+    let per = match problem.loss() {
         Loss::SumDistance(_) => 1.0 / particles as f64,
         _ => 1.0,
     };
