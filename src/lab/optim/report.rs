@@ -36,21 +36,28 @@ pub fn gradient_rollouts(budget: usize) -> usize {
     (budget as f64 / (1.0 + BACKWARD_COST)).ceil() as usize
 }
 
-/// The backward pass's cost measured in a run's own records: the mean rollout seconds of its
-/// gradient rollouts over those of its forward rollouts, minus the forward that a gradient
-/// rollout also runs. `None` when the run has not both kinds (or no time was recorded).
-pub fn measured_backward_cost(all: &BTreeMap<(Method, usize), Vec<Record>>) -> Option<f64> {
+/// The backward pass's multiple of a forward, measured in one run's rollouts, each given as
+/// `(has a backward pass, seconds)`: the mean seconds of the gradient rollouts over those of the
+/// forward ones, minus the forward that a gradient rollout also runs. `None` when the run has
+/// not both kinds (or no time was recorded). Every study that scores at equal compute counts
+/// its gradient rollouts at this multiple.
+pub fn backward_multiple(rollouts: impl IntoIterator<Item = (bool, f64)>) -> Option<f64> {
     let (mut g, mut f) = ((0.0, 0usize), (0.0, 0usize));
-    for r in all.values().flatten() {
-        let slot = if r.outcome.grad.is_some() {
-            &mut g
-        } else {
-            &mut f
-        };
-        slot.0 += r.outcome.wall_s;
+    for (gradient, wall_s) in rollouts {
+        let slot = if gradient { &mut g } else { &mut f };
+        slot.0 += wall_s;
         slot.1 += 1;
     }
     (g.1 > 0 && f.1 > 0 && f.0 > 0.0).then(|| (g.0 / g.1 as f64) / (f.0 / f.1 as f64) - 1.0)
+}
+
+/// [`backward_multiple`] of an optimisation run's records.
+pub fn measured_backward_cost(all: &BTreeMap<(Method, usize), Vec<Record>>) -> Option<f64> {
+    backward_multiple(
+        all.values()
+            .flatten()
+            .map(|r| (r.outcome.grad.is_some(), r.outcome.wall_s)),
+    )
 }
 
 /// The multiple a run's compute is counted at: the measured one, or [`BACKWARD_COST`] for a
@@ -63,8 +70,14 @@ pub fn backward_cost(all: &BTreeMap<(Method, usize), Vec<Record>>) -> f64 {
 /// `backward_cost` times the forward's.
 pub fn rollout_cost(o: &Outcome, backward_cost: f64) -> f64 {
     let forward = o.particles as f64 * o.steps as f64 * o.substeps as f64;
-    if o.grad.is_some() {
-        forward * (1.0 + backward_cost)
+    with_backward(forward, o.grad.is_some(), backward_cost)
+}
+
+/// A rollout's compute from its forward particle-substeps: `forward`, or `forward·(1 + m)`
+/// when it ran a backward pass at `m` forward passes.
+pub fn with_backward(forward: f64, gradient: bool, m: f64) -> f64 {
+    if gradient {
+        forward * (1.0 + m)
     } else {
         forward
     }

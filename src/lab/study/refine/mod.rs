@@ -68,30 +68,20 @@ pub struct Rollout {
 impl Rollout {
     /// Particle-substeps with a backward pass (if any) at `backward_cost` forward passes.
     pub fn cost_at(&self, backward_cost: f64) -> f64 {
-        self.forward_ps
-            * if self.grad.is_some() {
-                1.0 + backward_cost
-            } else {
-                1.0
-            }
+        crate::lab::optim::report::with_backward(
+            self.forward_ps,
+            self.grad.is_some(),
+            backward_cost,
+        )
     }
 }
 
-/// The backward pass's multiple of a forward, measured in rollouts of one study: the mean
-/// seconds of its gradient rollouts over its forward ones, minus one; the planned
-/// [`BACKWARD_COST`] where it has not both kinds.
+/// The backward multiple measured in rollouts of one study
+/// ([`crate::lab::optim::report::backward_multiple`]); the planned [`BACKWARD_COST`] where they
+/// are not of both kinds.
 pub fn measured_backward_cost<'a>(rollouts: impl Iterator<Item = &'a Rollout>) -> f64 {
-    let (mut g, mut f) = ((0.0, 0usize), (0.0, 0usize));
-    for r in rollouts {
-        let slot = if r.grad.is_some() { &mut g } else { &mut f };
-        slot.0 += r.wall_s;
-        slot.1 += 1;
-    }
-    if g.1 > 0 && f.1 > 0 && f.0 > 0.0 {
-        (g.0 / g.1 as f64) / (f.0 / f.1 as f64) - 1.0
-    } else {
-        BACKWARD_COST
-    }
+    crate::lab::optim::report::backward_multiple(rollouts.map(|r| (r.grad.is_some(), r.wall_s)))
+        .unwrap_or(BACKWARD_COST)
 }
 
 type Key = (usize, String, usize, usize);
