@@ -37,6 +37,17 @@ impl Stream<'_> {
     }
 }
 
+/// The working folder of a stream starting at `first` under a study's folder `name`: `name`
+/// itself for the stream from 0, `name-from-N` for one from N. A run's settings (its first seed
+/// or draw among them) fix its journals, so each stream keeps its own.
+pub fn folder(name: &str, first: usize) -> String {
+    if first == 0 {
+        name.to_string()
+    } else {
+        format!("{name}-from-{first}")
+    }
+}
+
 /// `s` with its first letter in upper case.
 fn capitalised(s: &str) -> String {
     let mut c = s.chars();
@@ -71,5 +82,7 @@ mod tests {
             .text()
             .starts_with("Seeds 10–19: a verdict stream"));
         assert!(stream(5).text().contains("a mixed stream"));
+        assert_eq!(super::folder("eval", 0), "eval");
+        assert_eq!(super::folder("eval", 20), "eval-from-20");
     }
 }

@@ -123,11 +123,10 @@ pub(super) fn optimizers_cmd(a: args::Optimizers) -> Result<()> {
         budget: a.paired.budget,
         methods,
         // One folder per stream: a run's settings (its first seed among them) fix its journal.
-        out: a.common.out.join(if a.first_seed == 0 {
-            "optimizers".to_string()
-        } else {
-            format!("optimizers-from-{}", a.first_seed)
-        }),
+        out: a
+            .common
+            .out
+            .join(powderlab::lab::streams::folder("optimizers", a.first_seed)),
         results: a.page.results.clone(),
         page: a.name.clone(),
         command,

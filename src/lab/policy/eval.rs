@@ -101,28 +101,34 @@ pub struct EvalConfig {
 /// chosen after seeing those scores. A verdict on fresh data uses draws from here on.
 pub const DESIGN_DRAWS: usize = 20;
 
+/// The comparison's folder under the policy study's for held-out draws from `first_draw`
+/// (`eval`, or `eval-from-N`).
+pub fn dir_name(first_draw: usize) -> String {
+    crate::lab::streams::folder("eval", first_draw)
+}
+
+/// The page's sentence on which stream held-out draws `first..first + count` are.
+pub fn stream_text(first: usize, count: usize) -> String {
+    crate::lab::streams::Stream {
+        noun: "Held-out draws",
+        first,
+        count,
+        design: DESIGN_DRAWS,
+        chosen: "the policy's design (its knob head, the dataset's size, the ensemble) and the pour variants",
+        flag: "--first-draw",
+    }
+    .text()
+}
+
 impl EvalConfig {
-    /// The comparison's folder under the policy study's: `eval` for the design draws from 0,
-    /// `eval-from-N` for a stream from draw N.
+    /// The comparison's folder under the policy study's ([`dir_name`]).
     pub fn dir_name(&self) -> String {
-        if self.first_draw == 0 {
-            "eval".into()
-        } else {
-            format!("eval-from-{}", self.first_draw)
-        }
+        dir_name(self.first_draw)
     }
 
-    /// The page's sentence on which draws these are.
+    /// The page's sentence on which draws these are ([`stream_text`]).
     pub fn stream_text(&self) -> String {
-        crate::lab::streams::Stream {
-            noun: "Held-out draws",
-            first: self.first_draw,
-            count: self.scenes,
-            design: DESIGN_DRAWS,
-            chosen: "the policy's design (its knob head, the dataset's size, the ensemble) and the pour variants",
-            flag: "--first-draw",
-        }
-        .text()
+        stream_text(self.first_draw, self.scenes)
     }
 
     /// The warm start's budget: a quarter of the full one, rounded up.

@@ -143,13 +143,7 @@ pub fn policy_trials(policy_dir: &Path, first: usize, n: usize) -> Option<Vec<Tr
     )
     .ok()?;
     let fp = p.fingerprint().ok()?;
-    let eval = crate::lab::policy::eval::EvalConfig {
-        scenes: n,
-        budget: 0,
-        seed: 0,
-        first_draw: first,
-    }
-    .dir_name();
+    let eval = crate::lab::policy::eval::dir_name(first);
     (first..first + n)
         .map(|j| policy_dir.join(format!("{eval}/scene-{j}/policy-{fp}.json")))
         .map(|f| serde_json::from_str(&std::fs::read_to_string(f).ok()?).ok())
@@ -179,13 +173,7 @@ pub fn report(
     let _ = writeln!(md, "Machine: {machine}.\n");
     let _ = writeln!(md, "**Why.** The distilled policy of [policy.md](policy.md) doses open loop: it chooses how deep to scoop, and the spoon empties what it took. What it takes depends on the grains' packing, which no policy sees, so even the per-scene optimiser's own Θ misses on a repacked powder (the policy page's *repacked* column says by how much). A lab robot meters against a balance instead. This study asks whether the spoon can: after the carry it tilts at the skill's angular speed up to {1}° and at {0}°/s past it, a load cell at the wrist reads what the bowl still holds, and the spoon turns back at the skill's angular speed as soon as the mass that has left it, plus {2} steps of its current outflow, reaches the dose (`powderlab::lab::policy::pour`). The spoon scoops at the family's deepest setting, so it holds the most there is to pour from; a dose above what it holds is poured whole. One rollout, no network.\n",
         s.pour.speed_deg, s.pour.fast_to_deg, s.pour.lead_steps);
-    let stream = crate::lab::policy::eval::EvalConfig {
-        scenes: s.scenes,
-        budget: 0,
-        seed: s.seed,
-        first_draw: s.first_draw,
-    }
-    .stream_text();
+    let stream = crate::lab::policy::eval::stream_text(s.first_draw, s.scenes);
     let _ = writeln!(md, "**Draws.** The policy page's held-out draws: {} of `scenes/policy_dosing.ron` (dx = 5 mm) and the first {} again from `scenes/policy_dosing_fine.ron`, the same scenes at dx = 2.5 mm (2³ = 8× the particles at the same particles per cell). {stream}\n", coarse.len(), fine.len());
     let _ = writeln!(md, "| pour | draws | dose error (g), mean ± sd | median | within 0.1 g | after the turn (g), mean | rollout (s) | particle-substeps |");
     let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
