@@ -35,34 +35,37 @@ pub fn particle_collision_adjoint(
 ) {
     let mut cs: Vec<_> = colliders.iter_mut().collect();
     cs.sort_by_key(|c| c.0.index);
-    let view: Vec<(usize, &Collider, &ColliderPose, Reach)> = cs
+    let dt = params.dt_sub;
+    let margin = MARGIN_CELLS * grid.dx;
+    // Per collider: its reach and its soft band (0 for the hard projection).
+    let view: Vec<(usize, &Collider, &ColliderPose, Reach, f64)> = cs
         .iter()
         .enumerate()
         .filter(|(_, c)| c.0.particle_contact)
-        .map(|(i, (c, p, _))| (i, *c, *p, Reach::of(c, p)))
+        .map(|(i, (c, p, _))| {
+            let soft = soft_speed(c.soft_particle_contact, margin, dt);
+            (i, *c, *p, Reach::of(c, p), soft)
+        })
         .collect();
-    let dt = params.dt_sub;
-    let margin = MARGIN_CELLS * grid.dx;
     for (x, input, mut gx, mut gv) in &mut bodies {
         let particle = |i: usize, g: &mut DVec3, gxi: &mut DVec3, acc: &mut ChunkAdj| {
             let xp = x.0[i];
             let mut v = input.0[i];
-            let mut hits = [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO); MAX_COLLIDERS];
+            let mut hits =
+                [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO, 0.0); MAX_COLLIDERS];
             let mut count = 0;
-            for &(ci, c, pose, reach) in &view {
-                let soft = soft_speed(c.soft_particle_contact, margin, dt);
+            for &(ci, c, pose, reach, soft) in &view {
                 let Some((phi, n, vb)) =
                     particle_contact(c, pose, &reach, xp, v, dt, margin + soft * dt)
                 else {
                     continue;
                 };
-                hits[count] = (ci, v, phi, n, vb);
+                hits[count] = (ci, v, phi, n, vb, soft);
                 v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction, soft);
                 count += 1;
             }
-            for &(ci, vin, phi, n, vb) in hits[..count].iter().rev() {
+            for &(ci, vin, phi, n, vb, soft) in hits[..count].iter().rev() {
                 let (c, pose) = (cs[ci].0, cs[ci].1);
-                let soft = soft_speed(c.soft_particle_contact, margin, dt);
                 let a = project_particle_adj(
                     vin, phi, n, vb, dt, margin, c.contact, c.friction, soft, *g,
                 );

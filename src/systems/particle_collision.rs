@@ -266,21 +266,23 @@ pub fn particle_collision(
     colliders: Query<(&Collider, &ColliderPose)>,
     mut bodies: Query<(&Position, &mut Velocity)>,
 ) {
+    let dt = params.dt_sub;
+    let margin = MARGIN_CELLS * grid.dx;
+    // Per collider: its reach and its soft band (0 for the hard projection).
     let mut cs: Vec<_> = colliders
         .iter()
         .filter(|c| c.0.particle_contact)
-        .map(|(c, pose)| (c, pose, Reach::of(c, pose)))
+        .map(|(c, pose)| {
+            let soft = soft_speed(c.soft_particle_contact, margin, dt);
+            (c, pose, Reach::of(c, pose), soft)
+        })
         .collect();
     cs.sort_by_key(|c| c.0.index);
-    let dt = params.dt_sub;
-    let margin = MARGIN_CELLS * grid.dx;
     for (x, mut v) in &mut bodies {
         v.0.par_iter_mut().zip(x.0.par_iter()).for_each(|(v, &x)| {
-            for (c, pose, reach) in &cs {
-                let soft = soft_speed(c.soft_particle_contact, margin, dt);
-                let reach_margin = margin + soft * dt;
+            for &(c, pose, ref reach, soft) in &cs {
                 if let Some((phi, n, vb)) =
-                    particle_contact(c, pose, reach, x, *v, dt, reach_margin)
+                    particle_contact(c, pose, reach, x, *v, dt, margin + soft * dt)
                 {
                     *v = project_particle(*v, phi, n, vb, dt, margin, c.contact, c.friction, soft);
                 }
