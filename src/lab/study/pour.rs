@@ -150,6 +150,16 @@ pub fn policy_trials(policy_dir: &Path, first: usize, n: usize) -> Option<Vec<Tr
         .collect()
 }
 
+/// The mean over `rows` of the largest mass to leave the spoon in one pour step (g).
+fn burst<'a>(rows: impl IntoIterator<Item = &'a Row>) -> f64 {
+    mean(
+        &rows
+            .into_iter()
+            .map(Row::largest_step_g)
+            .collect::<Vec<_>>(),
+    )
+}
+
 /// The page; `turn_back_deg` is the skill's angular speed, at which the spoon turns back.
 #[allow(clippy::too_many_arguments)]
 pub fn report(
@@ -259,16 +269,14 @@ pub fn report(
         let alpha = crate::lab::stats::ALPHA;
         let better = wilcoxon_less(&ge, pe).is_some_and(|p| p < alpha);
         let worse = wilcoxon_less(pe, &ge).is_some_and(|p| p < alpha);
-        let burst = |rows: &[Row]| mean(&rows.iter().map(Row::largest_step_g).collect::<Vec<_>>());
         let _ = writeln!(md, "**Verdict.** {} At dx = 5 mm the loop misses by {:.3} g against the open-loop policy's {:.3} g. The largest mass to leave the bowl in one step averages {:.3} g over the draws (the doses average {:.3} g), and after the spoon turns back {:.3} g still leaves on average over the {} pours that turned, against a lead of {} steps of the outflow before the turn.\n",
             if better { "The gravimetric pour doses better than the open-loop policy." } else if worse { "**The gravimetric pour does not meter the dose**: it is worse than the open-loop policy at the 5 % level." } else { "**The gravimetric pour is not shown better than the open-loop policy**, nor worse, at the 5 % level." },
             mean(&ge), mean(pe), burst(coarse), mean(&coarse.iter().map(|r| r.target_g).collect::<Vec<_>>()), mean(&after), after.len(), s.pour.lead_steps);
         if !fine.is_empty() {
-            let coarse_same: Vec<Row> = fine
+            let coarse_same = fine
                 .iter()
-                .filter_map(|f| coarse.iter().find(|c| c.scene == f.scene).cloned())
-                .collect();
-            let (bf, bc) = (burst(fine), burst(&coarse_same));
+                .filter_map(|f| coarse.iter().find(|c| c.scene == f.scene));
+            let (bf, bc) = (burst(fine), burst(coarse_same));
             let _ = writeln!(md, "At dx = 2.5 mm, at {:.0}× the compute, the largest one-step outflow averages {:.3} g against {:.3} g at 5 mm on the same draws ({}). There the deepest scoop holds {:.2} g less than at 5 mm on average (up to {:.2} g), and on {} of the {} draws it holds less than the dose. On the {} draws on which the spoon turned back, {} g more left after the turn and the dose was missed by {}.\n",
                 mean(&fine.iter().map(|r| r.particle_substeps).collect::<Vec<_>>()) / mean(&coarse.iter().map(|r| r.particle_substeps).collect::<Vec<_>>()),
                 bf, bc,
