@@ -10,6 +10,9 @@ use std::process::Command;
 
 mod common;
 
+/// The demonstrated skill parameters, as `demo make --theta` takes them.
+const THETA: [f64; 5] = [0.4, -0.3, 0.5, -0.6, 0.2];
+
 fn powderlab() -> Command {
     Command::new(env!("CARGO_BIN_EXE_powderlab"))
 }
@@ -27,7 +30,7 @@ fn a_made_demonstration_is_fitted_back() {
         .args(["demo", "make", "tests/scenes/tiny_transport.ron"])
         .args([
             "--theta",
-            "0.4,-0.3,0.5,-0.6,0.2",
+            &THETA.map(|t| t.to_string()).join(","),
             "--size",
             "64x48",
             "--every",
@@ -84,11 +87,15 @@ fn a_made_demonstration_is_fitted_back() {
     // frames of one skill should pin it at least as well as one frame pins the pose.
     let scene =
         powderlab::scene::Scene::load(common::test_scene_path("tiny_transport.ron")).unwrap();
-    let Some(powderlab::scene::ControlSpec::Skill(sk)) = &scene.colliders[2].control else {
-        panic!("the tiny scene's spoon is a skill")
+    let spoon = &scene.colliders[powderlab::rollout::skill_tool(&scene).unwrap()];
+    let Some(powderlab::scene::ControlSpec::Skill(sk)) = &spoon.control else {
+        unreachable!("skill_tool finds the skill-driven tool")
+    };
+    let powderlab::math::sdf::Shape::Spoon { bowl_radius, .. } = spoon.shape else {
+        panic!("the tiny scene's tool is a spoon")
     };
     let r = &sk.ranges;
-    let truth = [0.4, -0.3, 0.5, -0.6, 0.2];
+    let truth = THETA;
     let span = [
         r.scoop_depth,
         r.scoop_angle_deg,
@@ -97,7 +104,7 @@ fn a_made_demonstration_is_fitted_back() {
         r.pour_angle_deg,
     ];
     const PIXEL_M: f64 = 0.0025;
-    let pixel_deg = (PIXEL_M / 0.011_f64).atan().to_degrees();
+    let pixel_deg = (PIXEL_M / bowl_radius).atan().to_degrees();
     for k in 0..5 {
         // value = min + (θ + 1)/2·(max − min)
         let error = (theta[k] - truth[k]).abs() / 2.0 * (span[k].1 - span[k].0);
