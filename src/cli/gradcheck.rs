@@ -104,18 +104,8 @@ pub fn run(a: Args) -> Result<()> {
                     "zero gradient: both below the round-off floor {:.1e}",
                     row.noise_floor
                 )
-            } else if row.one_sided_rel_error.is_some() {
+            } else if let Some((side, e)) = row.nearest_side() {
                 let [minus, plus] = row.one_sided;
-                let rel =
-                    |x: f64| (row.adjoint - x).abs() / row.adjoint.abs().max(x.abs()).max(1e-300);
-                let (side, e) = [
-                    ("the − side", rel(minus)),
-                    ("the + side", rel(plus)),
-                    ("the mean of the two sides", rel(0.5 * (minus + plus))),
-                ]
-                .into_iter()
-                .min_by(|a, b| a.1.total_cmp(&b.1))
-                .expect("three candidates");
                 let follows = if e <= tol {
                     format!("the adjoint follows {side} (to {e:.1e})")
                 } else {

@@ -120,7 +120,7 @@ pub fn compare(parameter: String, adjoint: f64, base: f64, plus: f64, minus: f64
     let kink = !noise_limited
         && (one_sided[0] - one_sided[1]).abs() > 2.0 * noise_floor
         && rel(one_sided[0], one_sided[1]) > KINK_REL;
-    Row {
+    let mut row = Row {
         parameter,
         adjoint,
         finite_difference: fd,
@@ -130,11 +130,30 @@ pub fn compare(parameter: String, adjoint: f64, base: f64, plus: f64, minus: f64
         noise_floor,
         one_sided,
         kink,
-        one_sided_rel_error: kink.then(|| {
-            rel(adjoint, one_sided[0])
-                .min(rel(adjoint, one_sided[1]))
-                .min(rel(fd, adjoint))
-        }),
+        one_sided_rel_error: None,
+    };
+    row.one_sided_rel_error = row.nearest_side().map(|(_, e)| e);
+    row
+}
+
+impl Row {
+    /// At a kink, which of the one-sided differences and their mean (the central difference)
+    /// the adjoint is nearest, and its relative error against it; `None` off a kink.
+    pub fn nearest_side(&self) -> Option<(&'static str, f64)> {
+        let [minus, plus] = self.one_sided;
+        self.kink.then(|| {
+            [
+                ("the − side", rel(self.adjoint, minus)),
+                ("the + side", rel(self.adjoint, plus)),
+                (
+                    "the mean of the two sides",
+                    rel(self.finite_difference, self.adjoint),
+                ),
+            ]
+            .into_iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .expect("three candidates")
+        })
     }
 }
 
