@@ -201,6 +201,18 @@ impl Recorder {
         Ok(())
     }
 
+    /// Logs one value of a quantity that changes with the simulation (an instrument's reading)
+    /// as `Scalars` under `entity`, at the world's current step, on every step whether or not
+    /// the step's particles are recorded.
+    pub fn scalar(&mut self, world: &World, entity: &str, value: f64) -> anyhow::Result<()> {
+        let step = world.resource::<Clock>().step + self.step_offset;
+        let dt = world.resource::<SimParams>().dt;
+        self.rec.set_time_sequence("step", step as i64);
+        self.rec.set_duration_secs("sim_time", step as f64 * dt);
+        self.rec.log(entity, &Scalars::single(value))?;
+        Ok(())
+    }
+
     /// Logs a whole curve at once on the sequence timeline `timeline` (1-based), as `Scalars`
     /// under `metrics/<name>`.
     pub fn series(

@@ -6,12 +6,14 @@
 //! (trial F, SVD factors, P2G affine term, scatter order): only the former would be checkpointed.
 
 pub mod adjoint;
+pub mod balance;
 pub mod collider;
 pub mod grid;
 pub mod particles;
 pub mod sim;
 
 pub use adjoint::*;
+pub use balance::*;
 pub use collider::*;
 pub use grid::*;
 pub use particles::*;

@@ -13,6 +13,19 @@ pub fn quat_from_rotation_vector(r: DVec3) -> DQuat {
     }
 }
 
+/// The rotation vector of a unit quaternion (`log`, the inverse of
+/// [`quat_from_rotation_vector`]), with the angle in [0, π].
+#[inline]
+pub fn quat_to_rotation_vector(q: DQuat) -> DVec3 {
+    let q = if q.w < 0.0 { -q } else { q };
+    let (axis, angle) = q.to_axis_angle();
+    if angle.abs() < 1e-300 {
+        DVec3::ZERO
+    } else {
+        axis * angle
+    }
+}
+
 /// A rigid pose: `world = rotation · local + translation`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pose {
@@ -54,6 +67,19 @@ impl Pose {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn log_inverts_exp() {
+        for r in [
+            DVec3::new(0.3, -0.2, 0.1),
+            DVec3::new(0.0, 0.0, 3.0),
+            DVec3::new(-1.0, 2.0, 0.5),
+        ] {
+            let back = quat_to_rotation_vector(quat_from_rotation_vector(r));
+            assert!((back - r).length() < 1e-12, "{r} -> {back}");
+        }
+        assert_eq!(quat_to_rotation_vector(DQuat::IDENTITY), DVec3::ZERO);
+    }
 
     #[test]
     fn exp_of_rotation_vector() {

@@ -247,6 +247,41 @@ fn default_true() -> bool {
     true
 }
 
+/// An analytical balance under a Cup container: it weighs the powder in the cup's cavity and
+/// shows it through a first-order settling lag, with seeded noise, rounded to its readability.
+/// The defaults are an analytical balance's figures: 0.1 mg readability and repeatability, and
+/// a settling time constant of 0.5 s (within 1 % of a step in the load after 2.3 s, the 2–3 s
+/// settling time such balances state).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BalanceSpec {
+    /// Name of the Cup container on the balance (the weighing boat).
+    pub container: String,
+    /// The smallest step the display shows (mg). Default 0.1.
+    #[serde(default = "default_resolution_mg")]
+    pub resolution_mg: f64,
+    /// Standard deviation of the reading's noise (mg), drawn afresh at every reading.
+    /// Default 0.1.
+    #[serde(default = "default_noise_mg")]
+    pub noise_mg: f64,
+    /// Time constant of the settling lag (s). Default 0.5.
+    #[serde(default = "default_settle_s")]
+    pub settle_s: f64,
+    /// Seed of the noise. Default 0.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+fn default_resolution_mg() -> f64 {
+    0.1
+}
+fn default_noise_mg() -> f64 {
+    0.1
+}
+fn default_settle_s() -> f64 {
+    0.5
+}
+
 /// The transport task: which container is the target, and the target amount.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -325,6 +360,9 @@ pub struct Scene {
     /// The ranges `powderlab policy` draws scenes from; other commands ignore it.
     #[serde(default)]
     pub randomize: Option<super::randomize::Randomization>,
+    /// An analytical balance under a container (`powderlab weigh` closes its loop on it).
+    #[serde(default)]
+    pub balance: Option<BalanceSpec>,
     /// Where the scene came from (for messages).
     #[serde(skip)]
     pub path: PathBuf,

@@ -318,6 +318,37 @@ impl Scene {
                 &format!(">= 0 {unit}, a finite amount of powder"),
             )?;
         }
+        if let Some(b) = &self.balance {
+            if !self.colliders.iter().any(|c| {
+                c.name == b.container
+                    && c.kind == ColliderKindSpec::Container
+                    && matches!(c.shape, Shape::Cup { .. })
+            }) {
+                return Err(FieldError::new(
+                    "balance.container",
+                    format!("\"{}\"", b.container),
+                    "the name of a Cup collider of kind Container (the weighing boat)",
+                ));
+            }
+            pos(
+                "balance.resolution_mg",
+                b.resolution_mg,
+                b.resolution_mg > 0.0,
+                "> 0 mg (an analytical balance shows 0.1 mg)",
+            )?;
+            pos(
+                "balance.noise_mg",
+                b.noise_mg,
+                b.noise_mg >= 0.0,
+                ">= 0 mg (0 for a noiseless reading)",
+            )?;
+            pos(
+                "balance.settle_s",
+                b.settle_s,
+                b.settle_s > 0.0,
+                "> 0 s (a time constant; an analytical balance's is about 0.5 s)",
+            )?;
+        }
         if let Some(LossSpec::Dosing { grams, width }) = self.loss {
             if self.task.is_none() {
                 return Err(FieldError::new(

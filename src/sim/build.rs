@@ -224,6 +224,25 @@ impl Build {
                 .expect("a table per container");
             world.entity_mut(e).insert(table.clone());
         }
+        if let Some(spec) = &scene.balance {
+            // Validation made the balance's container a Cup; containers never move.
+            let boat = scene
+                .colliders
+                .iter()
+                .zip(&p.colliders)
+                .find(|(c, _)| c.name == spec.container)
+                .and_then(|(c, pc)| crate::math::geometry::CupRegion::of(&c.shape, pc.pose))
+                .ok_or_else(|| {
+                    internal_error(
+                        scene,
+                        format!(
+                            "internal: the balance's boat '{}' is not a Cup",
+                            spec.container
+                        ),
+                    )
+                })?;
+            world.spawn(Balance::new(boat, spec));
+        }
         world.insert_resource(grid);
         world.insert_resource(DomainWalls {
             cells: s.walls.cells,
@@ -242,12 +261,7 @@ impl Build {
             has_colliders: !scene.colliders.is_empty(),
             particle_contact: scene.colliders.iter().any(|c| c.particle_contact),
         };
-        let internal = |message: String| SceneError::Parse {
-            file: scene.path.clone(),
-            line: 1,
-            col: 1,
-            message,
-        };
+        let internal = |message: String| internal_error(scene, message);
         let mut schedule = systems::build_substep_schedule(&plan);
         schedule.initialize(&mut world).map_err(|e| {
             internal(format!(
@@ -287,9 +301,18 @@ impl Build {
                     .map_err(|e| internal(format!("cannot start {threads} worker threads: {e}")))?,
             )
         };
+        let mut instruments = systems::build_instrument_schedule(scene.balance.is_some());
+        if let Some(i) = &mut instruments {
+            i.initialize(&mut world).map_err(|e| {
+                internal(format!(
+                    "internal: the instruments' schedule does not build: {e:?}"
+                ))
+            })?;
+        }
         Ok(Simulation {
             world,
             schedule,
+            instruments,
             stage_schedules,
             pool,
             plan,
@@ -317,5 +340,15 @@ fn collider(c: &crate::scene::ColliderSpec, i: usize, dx: f64) -> Collider {
         bounding_radius: c.shape.bounding_radius(),
         particle_contact: c.particle_contact,
         soft_particle_contact: c.soft_particle_contact,
+    }
+}
+
+/// An error of this code, not of the scene, reported against the scene's file.
+fn internal_error(scene: &Scene, message: String) -> SceneError {
+    SceneError::Parse {
+        file: scene.path.clone(),
+        line: 1,
+        col: 1,
+        message,
     }
 }

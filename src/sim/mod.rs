@@ -48,6 +48,8 @@ pub(crate) fn run_in<R: Send>(pool: &Option<rayon::ThreadPool>, f: impl FnOnce()
 pub struct Simulation {
     pub world: World,
     schedule: Schedule,
+    /// The instruments (a balance), run once after each global step; `None` without any.
+    instruments: Option<Schedule>,
     stage_schedules: Option<Vec<(&'static str, Schedule)>>,
     /// The simulation's own worker pool; `None` runs in the caller's (`SimOptions::shared_pool`).
     pub(crate) pool: Option<rayon::ThreadPool>,
@@ -169,6 +171,9 @@ impl Simulation {
         let mut clock = self.world.resource_mut::<Clock>();
         clock.step += 1;
         clock.substep = 0;
+        if let Some(i) = &mut self.instruments {
+            i.run(&mut self.world);
+        }
         Ok(())
     }
 
@@ -179,6 +184,41 @@ impl Simulation {
             progress(k + 1);
         }
         Ok(())
+    }
+
+    /// The balance's display (g), if the scene has a balance: all a controller may read of it.
+    pub fn balance_reading_g(&mut self) -> Option<f64> {
+        let mut q = self.world.query::<&Balance>();
+        q.iter(&self.world).next().map(|b| b.reading_g)
+    }
+
+    /// The mass (g) in the balance's boat now, if the scene has a balance: the truth a dose is
+    /// judged by, which no controller reads.
+    pub fn balance_load_g(&mut self) -> Option<f64> {
+        let mut q = self.world.query::<&Balance>();
+        q.iter(&self.world).next().map(|b| b.load_g)
+    }
+
+    /// Sets the tool `tool`'s (scene index) control for the next step to `u` (translation and
+    /// rotation vector over the step), for a controller that decides one step at a time; the
+    /// tool's controls past the next step are dropped.
+    pub fn drive_tool(&mut self, tool: usize, u: [f64; 6]) {
+        let step = self.clock().step;
+        let mut q = self.world.query::<(&Collider, &mut Control)>();
+        for (c, mut ctl) in q.iter_mut(&mut self.world) {
+            if c.index == tool {
+                ctl.per_step.resize(step, [0.0; 6]);
+                ctl.per_step.push(u);
+            }
+        }
+    }
+
+    /// The pose of the collider with scene index `index`.
+    pub fn collider_pose(&mut self, index: usize) -> Option<Pose> {
+        let mut q = self.world.query::<(&Collider, &ColliderPose)>();
+        q.iter(&self.world)
+            .find(|(c, _)| c.index == index)
+            .map(|(_, p)| p.pose)
     }
 
     /// Particle state of every body, in scene order.

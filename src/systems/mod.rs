@@ -11,9 +11,12 @@
 //! material plug-in the scene uses).
 //!
 //! [`slab_schedule`] is not a stage: it runs the race-free slab scatter that P2G and the G2P
-//! adjoint share.
+//! adjoint share. [`balance`] is not a stage either: an instrument, run once per global step in
+//! the [`Instruments`] schedule of a scene that has one; it writes only what no stage reads, so
+//! it has no adjoint.
 
 pub mod advect;
+pub mod balance;
 pub mod constitutive;
 pub mod deformation_update;
 pub mod g2p;
@@ -35,6 +38,20 @@ use rayon::prelude::*;
 /// The substep schedule.
 #[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]
 pub struct Substep;
+
+/// The schedule of the instruments, run once per global step after its substeps.
+#[derive(ScheduleLabel, Debug, Clone, PartialEq, Eq, Hash)]
+pub struct Instruments;
+
+/// The instruments' schedule of a scene with a balance; `None` for a scene without any.
+pub fn build_instrument_schedule(has_balance: bool) -> Option<Schedule> {
+    has_balance.then(|| {
+        let mut s = Schedule::new(Instruments);
+        s.set_executor_kind(ExecutorKind::SingleThreaded);
+        s.add_systems(balance::balance);
+        s
+    })
+}
 
 /// The stages of a substep, in run order.
 #[derive(SystemSet, Debug, Clone, Copy, PartialEq, Eq, Hash)]

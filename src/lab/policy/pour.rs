@@ -24,7 +24,7 @@
 //! only after the carry. The loop makes the rollout's controls depend on its state, so it has
 //! no adjoint; the policy's rollouts and their search need none.
 
-use crate::components::{Body, Collider, ColliderPose, Control, Position};
+use crate::components::{Body, Collider, ColliderPose, Position};
 use crate::lab::optim::problem::{Outcome, Problem};
 use crate::math::sdf::Shape;
 use crate::scene::ControlSpec;
@@ -206,7 +206,7 @@ pub fn rollout(
         }
         angle += d;
         let r = axis * d;
-        push_control(&mut sim, ti, [0.0, y, 0.0, r.x, r.y, r.z]);
+        sim.drive_tool(ti, [0.0, y, 0.0, r.x, r.y, r.z]);
         sim.step().with_context(context)?;
         steps += 1;
     }
@@ -228,18 +228,4 @@ pub fn rollout(
         },
         trace,
     ))
-}
-
-/// Sets the tool's control for the simulation's next step to `u` (its controls run out at the
-/// carry's end, so the pour's are appended one step at a time).
-fn push_control(sim: &mut Simulation, tool: usize, u: [f64; 6]) {
-    let step = sim.clock().step;
-    let world = &mut sim.world;
-    let mut q = world.query::<(&Collider, &mut Control)>();
-    for (c, mut ctl) in q.iter_mut(world) {
-        if c.index == tool {
-            ctl.per_step.resize(step, [0.0; 6]);
-            ctl.per_step.push(u);
-        }
-    }
 }

@@ -1,0 +1,32 @@
+//! The balance, an instrument rather than a stage: once per global step, after the step's
+//! substeps, it weighs the powder in its boat's cavity and updates its display
+//! (`crate::components::balance`). It writes only the `Balance`, which no stage reads, so it has
+//! no adjoint and a backward pass never runs it.
+//!
+//! Reads `SimParams`, `Body`, `Position`; writes `Balance`.
+
+use crate::components::*;
+use bevy_ecs::prelude::*;
+
+/// The mass (g) of the particles inside `balance`'s boat, summed in body and particle order.
+pub fn load_g(balance: &Balance, bodies: &[(&Body, &Position)]) -> f64 {
+    let mut kg = 0.0;
+    for (b, x) in bodies {
+        let n = x.0.iter().filter(|p| balance.boat.inside(**p)).count();
+        kg += n as f64 * b.particle_mass;
+    }
+    kg * 1e3
+}
+
+pub fn balance(
+    params: Res<SimParams>,
+    bodies: Query<(&Body, &Position)>,
+    mut balances: Query<&mut Balance>,
+) {
+    let mut list: Vec<(&Body, &Position)> = bodies.iter().collect();
+    list.sort_by_key(|(b, _)| b.index);
+    for mut b in &mut balances {
+        let load = load_g(&b, &list);
+        b.update(load, params.dt);
+    }
+}
