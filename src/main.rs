@@ -55,6 +55,10 @@ enum Command {
     /// Check against exact solutions and published experiments (the quick set without a case).
     #[cfg(feature = "lab")]
     Validate(cli::validate::Args),
+    /// Weigh out a dose: scoop from the vial, tilt and tap the spatula over the boat until the
+    /// balance reads the target; prints target, delivered mass, error and scoops.
+    #[cfg(feature = "lab")]
+    Weigh(cli::weigh::Args),
     /// Accuracy and cost: `error-vs-time` (resolution sweeps) or `growth` (time per substep
     /// against the problem size).
     #[cfg(feature = "lab")]
@@ -85,6 +89,8 @@ fn main() {
         Command::Validate(a) => cli::validate::run(a),
         #[cfg(feature = "lab")]
         Command::Study(a) => cli::study::run(a),
+        #[cfg(feature = "lab")]
+        Command::Weigh(a) => cli::weigh::run(a),
     };
     if let Err(e) = r {
         eprintln!("error: {e:#}");

@@ -1,7 +1,7 @@
 //! `powderlab calibrate`: fit a powder's physical parameters to observations through the
 //! adjoint; `powderlab observe`: what a camera would see of a scene (synthetic observations).
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use powderlab::lab::calibrate::observation::{self, Observation};
 use powderlab::lab::calibrate::plot::{curves_svg, Curve};
 use powderlab::lab::calibrate::{self, params, AdamConfig, Calibration, Eval, Journal};
@@ -63,35 +63,10 @@ pub struct Args {
     quiet: bool,
 }
 
-/// `NAME=VALUE` pairs against the fitted (or settable) parameters of `scene`.
-fn assignments(
-    scene: &Scene,
-    flag: &str,
-    pairs: &[String],
-) -> Result<Vec<(params::FitParam, f64)>> {
-    let mut out = Vec::new();
-    for a in pairs {
-        let (name, v) = a
-            .split_once('=')
-            .with_context(|| format!("{flag} {a}: expected NAME=VALUE, e.g. friction_deg=35"))?;
-        let v: f64 = v
-            .trim()
-            .parse()
-            .ok()
-            .filter(|x: &f64| x.is_finite())
-            .with_context(|| format!("{flag} {a}: '{v}' is not a finite number"))?;
-        let p = params::parse(scene, &[name.to_string()], &[])
-            .map_err(|e| anyhow::anyhow!("{}", e.replacen("--fit", flag, 1)))?
-            .remove(0);
-        out.push((p, v));
-    }
-    Ok(out)
-}
-
 pub fn run(a: Args) -> Result<()> {
     let mut scene = Scene::load(&a.scene)?;
     let fit = params::parse(&scene, &a.fit, &a.bounds).map_err(anyhow::Error::msg)?;
-    for (p, v) in assignments(&scene, "--start", &a.start)? {
+    for (p, v) in super::assignments(&scene, "--start", &a.start)? {
         if !fit.iter().any(|q| q.target == p.target) {
             bail!("--start {}: not one of the --fit parameters", p.label);
         }
@@ -453,7 +428,7 @@ pub struct ObserveArgs {
 
 pub fn observe(a: ObserveArgs) -> Result<()> {
     let mut scene = Scene::load(&a.scene)?;
-    for (p, v) in assignments(&scene, "--set", &a.set)? {
+    for (p, v) in super::assignments(&scene, "--set", &a.set)? {
         p.apply(&mut scene, v);
     }
     if let Err(e) = scene.validate() {

@@ -22,6 +22,8 @@ pub mod simulate;
 pub mod study;
 #[cfg(feature = "lab")]
 pub mod validate;
+#[cfg(feature = "lab")]
+pub mod weigh;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use powderlab::sim::Simulation;
@@ -105,4 +107,31 @@ pub fn report_or_json(
         println!("{obj}");
     }
     Ok(!json_out)
+}
+
+/// `NAME=VALUE` pairs against the fitted (or settable) parameters of `scene` (`--set`).
+#[cfg(feature = "lab")]
+pub fn assignments(
+    scene: &powderlab::scene::Scene,
+    flag: &str,
+    pairs: &[String],
+) -> anyhow::Result<Vec<(powderlab::lab::calibrate::params::FitParam, f64)>> {
+    let mut out = Vec::new();
+    for a in pairs {
+        use anyhow::Context;
+        let (name, v) = a
+            .split_once('=')
+            .with_context(|| format!("{flag} {a}: expected NAME=VALUE, e.g. friction_deg=35"))?;
+        let v: f64 = v
+            .trim()
+            .parse()
+            .ok()
+            .filter(|x: &f64| x.is_finite())
+            .with_context(|| format!("{flag} {a}: '{v}' is not a finite number"))?;
+        let p = powderlab::lab::calibrate::params::parse(scene, &[name.to_string()], &[])
+            .map_err(|e| anyhow::anyhow!("{}", e.replacen("--fit", flag, 1)))?
+            .remove(0);
+        out.push((p, v));
+    }
+    Ok(out)
 }

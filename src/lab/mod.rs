@@ -9,6 +9,7 @@
 //! - [`policy`]: a skill policy over randomised scenes (seed B's Sim2Real step);
 //! - [`render`]: pictures of a run;
 //! - [`validate`]: checks against exact solutions and published experiments;
+//! - [`weigh`]: milligram doses onto a balance, closed on its reading;
 //! - [`gradcheck`]: the adjoint's gradients against central differences;
 //! - [`study`]: the studies whose pages are `docs/results/`;
 //! - [`journal`]: the one append-and-replay store of every resumable command;
@@ -33,3 +34,4 @@ pub mod stats;
 pub mod streams;
 pub mod study;
 pub mod validate;
+pub mod weigh;

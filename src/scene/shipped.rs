@@ -61,6 +61,10 @@ pub const SHIPPED: &[(&str, &str)] = &[
     ("sand_box", include_str!("../../scenes/sand_box.ron")),
     ("stiff_block", include_str!("../../scenes/stiff_block.ron")),
     ("vial_scale", include_str!("../../scenes/vial_scale.ron")),
+    (
+        "vial_weighing",
+        include_str!("../../scenes/vial_weighing.ron"),
+    ),
 ];
 
 /// The names of the shipped scenes, in order.
