@@ -72,6 +72,8 @@ pub enum Study {
     Policy(Policy),
     /// Pouring closed on a load cell (pour.md).
     Pour(Pour),
+    /// Milligram doses onto a balance on held-out powders (weighing.md).
+    Weighing(Weighing),
     /// Mutated scenes through `simulate`: every exit classified (reliability.md).
     Reliability(Reliability),
 }
@@ -262,4 +264,27 @@ pub struct Reliability {
     /// Processes side by side.
     #[arg(long, default_value_t = 2)]
     pub jobs: usize,
+}
+
+#[derive(Args)]
+pub struct Weighing {
+    #[command(flatten)]
+    pub common: Common,
+    #[command(flatten)]
+    pub page: Page,
+    /// The weighing scene (default scenes/vial_weighing.ron).
+    #[arg(long, default_value = "scenes/vial_weighing.ron")]
+    pub scene: PathBuf,
+    /// Held-out draws to dose.
+    #[arg(long, default_value_t = 20)]
+    pub draws: usize,
+    /// The first held-out draw.
+    #[arg(long, default_value_t = 0)]
+    pub first_draw: usize,
+    /// Worker threads per dose (default: the scene's setting; 0 = all cores).
+    #[arg(long, value_parser = crate::cli::threads_arg)]
+    pub threads: Option<usize>,
+    /// Run no dose: rewrite the page from the doses already kept.
+    #[arg(long)]
+    pub page_only: bool,
 }

@@ -66,6 +66,7 @@ pub fn run(a: Args) -> Result<()> {
         Study::Planning(a) => tasks::planning_cmd(a),
         Study::Policy(a) => tasks::policy_cmd(a),
         Study::Pour(a) => tasks::pour_cmd(a),
+        Study::Weighing(a) => tasks::weighing_cmd(a),
         Study::Reliability(a) => tasks::reliability_cmd(a),
     }
 }

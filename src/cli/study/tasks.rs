@@ -448,3 +448,59 @@ pub(super) fn reliability_cmd(a: args::Reliability) -> Result<()> {
     );
     Ok(())
 }
+
+/// `powderlab study weighing`: the rule's doses on held-out draws; the page after every draw.
+pub(super) fn weighing_cmd(a: args::Weighing) -> Result<()> {
+    use powderlab::lab::study::weighing;
+    let base = powderlab::scene::Scene::load(&a.scene)?;
+    let d = powderlab::lab::weigh::Dispense::default();
+    let opts = powderlab::sim::SimOptions {
+        threads: a.threads,
+        ..Default::default()
+    };
+    let folder = powderlab::lab::streams::folder("weighing", a.first_draw);
+    let dir = a.common.out.join(folder);
+    powderlab::util::create_output_dir(&a.page.results, "--results")?;
+    let threads = match a.threads {
+        Some(1) => "one thread".to_string(),
+        Some(0) => "all cores".to_string(),
+        Some(n) => format!("{n} threads"),
+        None => format!("{} threads (the scene's setting)", base.simulation.threads),
+    };
+    let pb = super::super::bar(a.draws as u64, a.common.json);
+    let rows = weighing::run(
+        &base,
+        &d,
+        a.first_draw,
+        a.draws,
+        &opts,
+        &dir,
+        a.page_only,
+        &mut |rows| {
+            pb.set_position(rows.len() as u64);
+            weighing::plot(rows, &a.page.results.join("weighing.svg"))?;
+            powderlab::util::write_atomic(
+                &a.page.results.join("weighing.md"),
+                weighing::page(rows, &d, a.first_draw, a.draws, &threads).as_bytes(),
+            )?;
+            Ok(())
+        },
+    )?;
+    pb.finish_and_clear();
+    let s = weighing::summary(&rows);
+    if a.common.json {
+        println!(
+            "{}",
+            serde_json::json!({"doses": s.n, "mean_abs_mg": s.mean_abs_mg, "within_2mg": s.within})
+        );
+    } else {
+        println!(
+            "{} doses: mean |error| {:.2} mg, {:.0} % within ±2 mg; page {}",
+            s.n,
+            s.mean_abs_mg,
+            100.0 * s.within,
+            a.page.results.join("weighing.md").display()
+        );
+    }
+    Ok(())
+}

@@ -34,6 +34,7 @@ pub mod push;
 pub mod refine;
 pub mod reliability;
 pub mod warm_start;
+pub mod weighing;
 
 pub use analysis::*;
 
