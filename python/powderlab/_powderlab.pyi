@@ -83,6 +83,10 @@ class Simulation:
         """(N, 3) float64 particle velocities (m/s)."""
     def tool_pose(self, name: str) -> Tuple[_F64, _F64]:
         """(position (3,), quaternion (4,) x, y, z, w) of a collider."""
+    def balance_reading(self) -> Optional[float]:
+        """The balance's display (mg), None without a balance."""
+    def skill_phases(self, tool: str) -> List[int]:
+        """Steps of the skill's six phases (descend, scoop, lift, transport, pour, settle)."""
     def tool_limit(self, tool: str) -> Tuple[float, float]:
         """(largest point speed m/s the controls may reach, bounding radius m)."""
     def set_controls(self, tool: str, controls: Union[_F64, Sequence[float], Sequence[Sequence[float]]]) -> None:

@@ -240,6 +240,30 @@ impl Simulation {
         Ok(())
     }
 
+    /// What the scene's balance shows now (mg), or None in a scene without a balance: the
+    /// reading a weighing controller closes its loop on (0.1 mg steps, noise, a settling lag).
+    fn balance_reading(&mut self) -> Option<f64> {
+        self.sim.balance_reading_g().map(|g| g * 1e3)
+    }
+
+    /// The step counts of the six phases of tool `tool`'s skill (descend, scoop, lift,
+    /// transport, pour, settle) at the scene's Θ; an error for a tool without a skill.
+    fn skill_phases(&self, tool: &str) -> PyResult<Vec<usize>> {
+        let scene = &self.sim.scene;
+        let Some(c) = scene.colliders.iter().find(|c| c.name == tool) else {
+            return Err(no_tool(tool, &self.limits));
+        };
+        match &c.control {
+            Some(powderlab::scene::ControlSpec::Skill(sk)) => Ok(sk
+                .controls(scene.simulation.dt, powderlab::scene::Scene::tool_bottom(c))
+                .1
+                .to_vec()),
+            _ => Err(PyValueError::new_err(format!(
+                "skill_phases('{tool}'): the tool has no Skill control"
+            ))),
+        }
+    }
+
     /// (largest point speed in m/s, bounding radius in m) of tool `tool`: the speed of the
     /// scene's own controls, which `set_controls` may not exceed, and the radius that turns a
     /// rotation into a point speed.

@@ -84,3 +84,35 @@ def test_heightfield_sees_the_powder_in_the_source_cup(tiny):
     lo, hi = tiny.domain
     x = powderlab.Simulation(tiny).positions()
     assert abs(h.max() - (x[:, 1].max() - lo[1])) < 1e-15
+
+
+def _coarse_weighing(tmp_path):
+    """``vial_weighing`` at dx = 2 mm (5k grains instead of 37k), written to a file."""
+    import pathlib
+
+    root = pathlib.Path(__file__).resolve().parents[2]
+    text = (root / "scenes" / "vial_weighing.ron").read_text()
+    text = (
+        text.replace("cells: (72, 48, 32)", "cells: (36, 24, 16)")
+        .replace("dx: 0.001", "dx: 0.002")
+        .replace("walls: (cells: 3", "walls: (cells: 2")
+    )
+    path = tmp_path / "coarse_weighing.ron"
+    path.write_text(text)
+    return path
+
+
+def test_weighing_env_passes_the_checker_and_rewards_the_dose_error(tmp_path):
+    scene = _coarse_weighing(tmp_path)
+    env = gym.make("powderlab/Weighing-v0", scene=str(scene), max_steps=3, settle_steps=5,
+                   randomize={"friction_deg": (25.0, 45.0)})
+    check_env(env.unwrapped, skip_render_check=True)
+    env = powderlab.envs.WeighingEnv(str(scene), max_steps=40, settle_steps=50)
+    obs, info = env.reset(seed=1)
+    assert 5.0 <= obs["target_mg"][0] <= 50.0 and abs(obs["reading_mg"][0]) < 1.0
+    done = False
+    while not done:
+        obs, reward, done, _, info = env.step(np.array([1.0, 1.0]))
+    # Tilted and tapped for 80 steps: powder reached the boat, and the reward is its error.
+    assert info["delivered_mg"] > 0.0
+    assert reward == -abs(info["delivered_mg"] - info["target_mg"])

@@ -26,11 +26,17 @@ CHECK = textwrap.dedent(
     assert not os.path.exists("scenes"), os.getcwd()
     assert "site-packages" in powderlab.__file__, powderlab.__file__
     ids = sorted(i for i in gym.registry if i.startswith("powderlab/"))
-    assert ids == ["powderlab/SkillTransport-v0", "powderlab/ToolControl-v0"], ids
-    for env_id in ids:
+    assert ids == ["powderlab/SkillTransport-v0", "powderlab/ToolControl-v0",
+                   "powderlab/Weighing-v0"], ids
+    for env_id in ids[:2]:
         env = gym.make(env_id)  # the defaults: the shipped powder_transport
         check_env(env.unwrapped, skip_render_check=True)
         env.close()
+    # The weighing default is the shipped 1 mm vial, minutes an episode: built, not stepped
+    # (tests/test_envs.py runs the checker on it coarsened).
+    env = gym.make(ids[2])
+    assert sorted(env.observation_space.spaces) == ["params", "reading_mg", "target_mg", "tool"]
+    env.close()
     names = powderlab.scenes()
     assert "powder_transport" in names and "free_fall" in names, names
     r = powderlab.rollout(powderlab.Scene.shipped("free_fall"), steps=3, threads=1)
