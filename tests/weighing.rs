@@ -139,22 +139,12 @@ fn weigh_prints_its_keys_and_refuses_bad_settings() {
         .replace("walls: (cells: 3", "walls: (cells: 2");
     std::fs::write(&scene, text).unwrap();
     let bin = env!("CARGO_BIN_EXE_powderlab");
-    let out = std::process::Command::new(bin)
-        .args([
-            "weigh",
-            scene.to_str().unwrap(),
-            "--target-mg",
-            "0",
-            "--json",
-            "--out",
-        ])
-        .arg(dir.join("run"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = common::succeeds(
+        std::process::Command::new(bin)
+            .arg("weigh")
+            .arg(&scene)
+            .args(["--target-mg", "0", "--json", "--out"])
+            .arg(dir.join("run")),
     );
     // The recording holds the balance's reading beside the 3D view.
     common::assert_rrd_has(

@@ -137,3 +137,14 @@ pub fn check_fd(f: impl Fn(f64) -> f64, h: f64, ad: f64, what: &str) {
         estimate / scale
     );
 }
+
+/// Runs `cmd` and returns its output, failing the test with its stderr if it did not succeed.
+pub fn succeeds(cmd: &mut std::process::Command) -> std::process::Output {
+    let out = cmd.output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
