@@ -118,6 +118,35 @@ pub fn summary(rows: &[Row]) -> Summary {
     }
 }
 
+/// The doses that missed by more than [`SUCCESS_MG`], by what the rule ran into.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Misses {
+    /// Short, with every scoop used.
+    pub out_of_scoops: usize,
+    /// Over the target.
+    pub over: usize,
+    /// Short, with scoops left.
+    pub short: usize,
+}
+
+impl Misses {
+    pub fn of(rows: &[Row], d: &Dispense) -> Misses {
+        let mut m = Misses::default();
+        for r in rows.iter().filter(|r| r.dose.error_mg.abs() > SUCCESS_MG) {
+            match (r.dose.error_mg > 0.0, r.dose.scoops >= d.max_scoops) {
+                (true, _) => m.over += 1,
+                (false, true) => m.out_of_scoops += 1,
+                (false, false) => m.short += 1,
+            }
+        }
+        m
+    }
+
+    pub fn total(&self) -> usize {
+        self.out_of_scoops + self.over + self.short
+    }
+}
+
 /// The page, from the rows so far of `planned` draws starting at `first`.
 pub fn page(rows: &[Row], d: &Dispense, first: usize, planned: usize, threads: &str) -> String {
     let mut s = String::new();
@@ -192,6 +221,22 @@ pub fn page(rows: &[Row], d: &Dispense, first: usize, planned: usize, threads: &
             "missed".to_string()
         }
     );
+    let misses = Misses::of(rows, d);
+    if misses.total() > 0 {
+        let _ = writeln!(
+            s,
+            "What the {} misses beyond ±2 mg come from: {} short after all {} scoops (the \
+             spatula's capacity: a scoop of a light powder holds a few milligrams), {} over the \
+             target (powder that still left after the spatula turned back, more than the lead \
+             allowed for), {} short with scoops to spare (the rule judged the reading done, or \
+             the reading lagged the load).\n",
+            misses.total(),
+            misses.out_of_scoops,
+            d.max_scoops,
+            misses.over,
+            misses.short
+        );
+    }
     let _ = writeln!(s, "![the balance's reading against time](weighing.svg)\n");
     let _ = writeln!(s, "## Every dose\n");
     let _ = writeln!(
@@ -287,4 +332,65 @@ pub fn plot(rows: &[Row], path: &Path) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(draw: usize, target: f64, delivered: f64, scoops: usize) -> Row {
+        Row {
+            draw,
+            powder: Draw {
+                fill_height: 0.015,
+                friction_deg: 30.0,
+                density: 1000.0,
+                youngs_modulus: 5e3,
+                source_x: 0.016,
+                cup_distance: 0.036,
+                target_g: target * 1e-3,
+                packing_seed: 0,
+            },
+            method: "rule".into(),
+            dose: DoseReport {
+                target_mg: target,
+                delivered_mg: delivered,
+                error_mg: delivered - target,
+                reading_mg: delivered,
+                scoops,
+                taps: 0,
+                sim_s: 10.0,
+                wall_s: 100.0,
+                steps: 1000,
+                particle_substeps: 1e9,
+                grain_mg: 0.1,
+                trace: vec![],
+            },
+        }
+    }
+
+    #[test]
+    fn the_summary_and_the_misses_follow_the_doses() {
+        let d = Dispense::default();
+        let rows = [
+            row(0, 10.0, 10.5, 1),
+            row(1, 20.0, 23.0, 2),
+            row(2, 50.0, 30.0, d.max_scoops),
+            row(3, 30.0, 26.0, 2),
+            row(4, 5.0, 4.0, 1),
+        ];
+        let s = summary(&rows);
+        assert_eq!(s.n, 5);
+        assert!((s.mean_abs_mg - (0.5 + 3.0 + 20.0 + 4.0 + 1.0) / 5.0).abs() < 1e-12);
+        assert_eq!(s.median_abs_mg, 3.0);
+        assert!((s.within - 0.4).abs() < 1e-12);
+        let m = Misses::of(&rows, &d);
+        assert_eq!((m.over, m.out_of_scoops, m.short), (1, 1, 1));
+        let page = page(&rows, &d, 0, 20, "one thread");
+        assert!(page.contains("**5 of the 20 draws are done**"), "{page}");
+        assert!(
+            page.contains("not judged yet; missed on the 5 doses so far"),
+            "{page}"
+        );
+    }
 }
