@@ -12,6 +12,7 @@
 //! the material by [`Material::TAG`] (`tests/extension_points.rs` does this with a Neo-Hookean
 //! solid).
 
+pub mod cohesive_drucker_prager;
 pub mod drucker_prager;
 pub mod elastic;
 pub mod registry;

@@ -47,6 +47,7 @@ macro_rules! builtin_materials {
 
 builtin_materials! {
     super::drucker_prager::DruckerPrager,
+    super::cohesive_drucker_prager::CohesiveDruckerPrager,
     super::elastic::Elastic,
 }
 

@@ -89,6 +89,38 @@ pub fn dp_project(eps: DVec3, mu: f64, lambda: f64, alpha: f64) -> (DVec3, f64, 
     }
 }
 
+/// The trace of the Hencky strain at the apex of a cohesive Drucker–Prager cone:
+/// `tr ε_c = c·cot φ / K`, `K = λ + 2μ/3` the bulk modulus. The cone of cohesion `c` is the
+/// cohesionless one moved along the hydrostatic axis so that its apex sits at the tensile mean
+/// stress `p_t = c·cot φ`: the Mohr–Coulomb apex, through which both the Drucker–Prager cone
+/// and the Mohr–Coulomb pyramid it is fitted to pass. That apex is the tensile cut-off: beyond
+/// it the return goes to the apex, a hydrostatic tension of `p_t` (the cohesionless cone's
+/// tip, `ε′ = 0`, is the case `c = 0`). `φ` must be above 0 when `c > 0` (the material
+/// refuses otherwise).
+#[inline(always)]
+pub fn cohesion_trace(cohesion: f64, friction_deg: f64, mu: f64, lambda: f64) -> f64 {
+    cohesion / (friction_deg.to_radians().tan() * (lambda + 2.0 * mu / 3.0))
+}
+
+/// [`dp_project`] of the cone whose apex is at the strain trace `tr_c` ([`cohesion_trace`]):
+/// the cohesionless projection of `ε − tr_c/3`, moved back by `tr_c/3`. At `tr_c = 0` it is
+/// [`dp_project`] itself, bit for bit.
+#[inline(always)]
+pub fn dp_project_cohesive(
+    eps: DVec3,
+    mu: f64,
+    lambda: f64,
+    alpha: f64,
+    tr_c: f64,
+) -> (DVec3, f64, DpCase) {
+    if tr_c == 0.0 {
+        return dp_project(eps, mu, lambda, alpha);
+    }
+    let shift = DVec3::splat(tr_c / 3.0);
+    let (e, dq, case) = dp_project(eps - shift, mu, lambda, alpha);
+    (e + shift, dq, case)
+}
+
 // ---------------------------------------------------------------------------------------------
 // Adjoints. Each takes the forward inputs plus the adjoint of the outputs and returns the
 // adjoints of the inputs (the caller accumulates them with `+=`).
@@ -198,6 +230,45 @@ pub fn dp_project_adj(
     }
 }
 
+/// Adjoint of [`cohesion_trace`]: `∂L/∂tr_c` → `(∂L/∂c, ∂L/∂φ (per degree), ∂L/∂μ, ∂L/∂λ)`.
+pub fn cohesion_trace_adj(
+    cohesion: f64,
+    friction_deg: f64,
+    mu: f64,
+    lambda: f64,
+    g_trc: f64,
+) -> (f64, f64, f64, f64) {
+    let phi = friction_deg.to_radians();
+    let (t, k) = (phi.tan(), lambda + 2.0 * mu / 3.0);
+    let tr_c = cohesion / (t * k);
+    let g_c = g_trc / (t * k);
+    // d(1/tan φ)/dφ = −1/sin²φ.
+    let g_phi = g_trc * cohesion / k * (-1.0 / (phi.sin() * phi.sin())) * (1f64).to_radians();
+    let g_k = -g_trc * tr_c / k;
+    (g_c, g_phi, g_k * 2.0 / 3.0, g_k)
+}
+
+/// Adjoint of [`dp_project_cohesive`]: `(∂L/∂ε′, ∂L/∂δq)` →
+/// `(∂L/∂ε, ∂L/∂μ, ∂L/∂λ, ∂L/∂α, ∂L/∂tr_c)`, with [`dp_project_adj`]'s one-sidedness at the
+/// case switches.
+pub fn dp_project_cohesive_adj(
+    eps: DVec3,
+    mu: f64,
+    lambda: f64,
+    alpha: f64,
+    tr_c: f64,
+    g_new: DVec3,
+    g_dq: f64,
+) -> (DVec3, f64, f64, f64, f64) {
+    let shift = DVec3::splat(tr_c / 3.0);
+    let (g_e, g_mu, g_lambda, g_alpha) =
+        dp_project_adj(eps - shift, mu, lambda, alpha, g_new, g_dq);
+    // ε′ = P(ε − tr_c/3) + tr_c/3: the shift enters once through P's input and once added.
+    let sum = |v: DVec3| v.x + v.y + v.z;
+    let g_trc = (sum(g_new) - sum(g_e)) / 3.0;
+    (g_e, g_mu, g_lambda, g_alpha, g_trc)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -296,6 +367,131 @@ mod tests {
                 "dlambda",
             );
         }
+    }
+
+    #[test]
+    fn without_cohesion_the_cohesive_projection_is_the_cohesionless_one() {
+        let mut seed = 3;
+        let (mu, lambda) = lame(1e5, 0.3);
+        for _ in 0..200 {
+            let eps = 0.05 * DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed));
+            let a = dp_project(eps, mu, lambda, dp_alpha(30.0));
+            let b = dp_project_cohesive(eps, mu, lambda, dp_alpha(30.0), 0.0);
+            assert_eq!(
+                a.0.to_array().map(f64::to_bits),
+                b.0.to_array().map(f64::to_bits)
+            );
+            assert_eq!((a.1.to_bits(), a.2), (b.1.to_bits(), b.2));
+        }
+    }
+
+    #[test]
+    fn cohesion_moves_the_apex_to_the_mohr_coulomb_tension() {
+        // A stretch beyond the apex returns to it: a hydrostatic tension of c·cot φ.
+        let (mu, lambda) = lame(1e5, 0.3);
+        let (c, phi) = (200.0, 35.0);
+        let tr_c = cohesion_trace(c, phi, mu, lambda);
+        let (e, _, case) = dp_project_cohesive(DVec3::splat(0.01), mu, lambda, dp_alpha(phi), tr_c);
+        assert_eq!(case, DpCase::Tip);
+        let tau = kirchhoff_principal(e, mu, lambda);
+        let p_t = c / phi.to_radians().tan();
+        for t in tau.to_array() {
+            assert!((t - p_t).abs() < 1e-9 * p_t, "{t} against {p_t}");
+        }
+        // A shear the cohesionless cone yields under stands with cohesion: at zero mean stress
+        // the cone admits ‖s‖ up to 3α·p_t.
+        let eps = DVec3::new(1e-4, -1e-4, 0.0);
+        assert_eq!(dp_project(eps, mu, lambda, dp_alpha(phi)).2, DpCase::Tip);
+        assert_eq!(
+            dp_project_cohesive(eps, mu, lambda, dp_alpha(phi), tr_c).2,
+            DpCase::Elastic
+        );
+    }
+
+    #[test]
+    fn cohesive_projection_adjoint_in_every_case() {
+        // Each derivative against central differences at steps h and h/2, within 3× their
+        // difference (the difference's own error estimate: truncation leaves D(h) 4/3 of it
+        // off, round-off at least about it; the rule of `tests/common::check_fd`), plus 1e-6
+        // of the derivative and an absolute floor of 1e-10 for the round-off of a loss of about
+        // 0.1 over a step of 1e-6 when a parameter does not enter the case at all.
+        const ESTIMATE_FACTOR: f64 = 3.0;
+        const FLOOR: f64 = 1e-10;
+        let check = |f: &dyn Fn(f64) -> f64, h: f64, ad: f64, what: &str| {
+            let d = |h: f64| (f(h) - f(-h)) / (2.0 * h);
+            let (d1, d2) = (d(h), d(h / 2.0));
+            let tol = ESTIMATE_FACTOR * (d1 - d2).abs() + ADJ_REL_TOL * ad.abs() + FLOOR;
+            assert!((d2 - ad).abs() <= tol, "{what}: fd {d1}, {d2} ad {ad}");
+        };
+        let mut seed = 11;
+        let mut seen = [0usize; 3];
+        for _ in 0..3000 {
+            let eps = 0.05 * DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed));
+            let (mu, lambda) = lame(1e5, 0.3);
+            let phi = 20.0 + 20.0 * lcg(&mut seed).abs();
+            let c = 2000.0 * lcg(&mut seed).abs();
+            let alpha = dp_alpha(phi);
+            let (w, wq) = (
+                DVec3::new(lcg(&mut seed), lcg(&mut seed), lcg(&mut seed)),
+                lcg(&mut seed),
+            );
+            // The loss through the cohesion's trace, so that its adjoint is checked too.
+            let f = |eps: DVec3, mu: f64, lambda: f64, phi: f64, c: f64| {
+                let tr_c = cohesion_trace(c, phi, mu, lambda);
+                let (e, dq, _) = dp_project_cohesive(eps, mu, lambda, dp_alpha(phi), tr_c);
+                e.dot(w) + wq * dq
+            };
+            let tr_c = cohesion_trace(c, phi, mu, lambda);
+            let case_at = |eps: DVec3, mu: f64, lambda: f64, phi: f64, c: f64| {
+                let tr_c = cohesion_trace(c, phi, mu, lambda);
+                dp_project_cohesive(eps, mu, lambda, dp_alpha(phi), tr_c).2
+            };
+            let case = case_at(eps, mu, lambda, phi, c);
+            let robust = (0..3).all(|a| {
+                let mut e = DVec3::ZERO;
+                e[a] = 100.0 * FD_EPS;
+                case_at(eps + e, mu, lambda, phi, c) == case
+                    && case_at(eps - e, mu, lambda, phi, c) == case
+            }) && [
+                (1.001, 1.0, 1.0),
+                (0.999, 1.0, 1.0),
+                (1.0, 1.001, 1.001),
+                (1.0, 0.999, 0.999),
+            ]
+            .iter()
+            .all(|(fp, fc, fm)| case_at(eps, mu * fm, lambda * fm, phi * fp, c * fc) == case);
+            if !robust {
+                continue;
+            }
+            seen[case as usize] += 1;
+            let (ge, gm, gl, ga, gt) = dp_project_cohesive_adj(eps, mu, lambda, alpha, tr_c, w, wq);
+            let (gc, gphi_t, gm_t, gl_t) = cohesion_trace_adj(c, phi, mu, lambda, gt);
+            let gphi = ga * dp_alpha_adj(phi, 1.0) + gphi_t;
+            for a in 0..3 {
+                let mut e = DVec3::ZERO;
+                e[a] = 1.0;
+                check(
+                    &|h| f(eps + e * h, mu, lambda, phi, c),
+                    FD_EPS,
+                    ge[a],
+                    "deps",
+                );
+            }
+            let h = FD_EPS * mu;
+            check(&|d| f(eps, mu + d, lambda, phi, c), h, gm + gm_t, "dmu");
+            check(&|d| f(eps, mu, lambda + d, phi, c), h, gl + gl_t, "dlambda");
+            check(&|d| f(eps, mu, lambda, phi + d, c), FD_EPS, gphi, "dphi");
+            check(
+                &|d| f(eps, mu, lambda, phi, c + d),
+                1e-6 * c.max(1.0),
+                gc,
+                "dc",
+            );
+        }
+        assert!(
+            seen.iter().all(|&n| n > 50),
+            "every case exercised: {seen:?}"
+        );
     }
 
     #[test]
