@@ -67,7 +67,7 @@ fn a_block_below_the_rankine_height_stands_and_without_cohesion_it_slumps() {
 
 #[test]
 fn cohesion_is_a_named_parameter_of_the_scene() {
-    let scene = block(60.0);
+    let scene = block(100.0);
     let p = powderlab::lab::calibrate::params::parse(&scene, &["cohesion".to_string()], &[])
         .unwrap()
         .remove(0);
