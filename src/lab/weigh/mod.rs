@@ -46,6 +46,12 @@ pub const FINAL_SETTLE_S: f64 = 0.5;
 /// step): a 1,500-step dose of 36k grains at every step is 690 MB.
 pub const RECORD_EVERY: usize = 5;
 
+/// The most simulated time a dose may take (s): the rule then turns back and stops, and the
+/// dose is what has reached the boat. Every resume waits [`Dispense::wait_s`] for the reading,
+/// and nothing else bounds how often the rule resumes on a spatula that still holds powder; a
+/// real robot's dose takes one to a few minutes.
+pub const MAX_DOSE_S: f64 = 300.0;
+
 /// The window over which the rule estimates the reading's rate (s).
 pub const RATE_WINDOW_S: f64 = 0.2;
 
@@ -411,6 +417,8 @@ fn run_dose(
     // Below this tilt the powder has not yet moved the reading (radians).
     let mut onset: Option<f64> = None;
     let mut scoops = 0;
+    // Bounded: a rule that resumes without end still stops (see `MAX_DOSE_S`).
+    let max_steps = (MAX_DOSE_S / dt).ceil() as usize;
     'dose: while scoops < d.max_scoops {
         if scoops > 0 {
             let goal = Pose {
@@ -432,6 +440,9 @@ fn run_dose(
             let mut stopped = false;
             let mut k = 0usize;
             while run.tilt < d.max_deg.to_radians() {
+                if run.readings.len() >= max_steps {
+                    break;
+                }
                 let lead = d.lead_mg * 1e-3 + d.lead_s * run.rate(rate_n, dt).max(0.0);
                 if run.reading() + lead >= target {
                     stopped = true;
@@ -472,7 +483,7 @@ fn run_dose(
             for _ in 0..wait {
                 run.step([0.0; 6])?;
             }
-            if run.reading() >= target - d.tolerance_mg * 1e-3 {
+            if run.reading() >= target - d.tolerance_mg * 1e-3 || run.readings.len() >= max_steps {
                 break 'dose;
             }
             if !stopped {
