@@ -35,8 +35,8 @@ pub struct Row {
 
 /// Runs (or resumes) the rule `d` on held-out draws `first..first + n` of `base`, one after the
 /// other (each dose uses the pool of `opts`), in `dir`; `done(rows)` after each draw, with the
-/// rows so far in draw order. With `kept_only`, runs none and returns the doses already kept
-/// (the leading ones, up to the first missing draw).
+/// rows so far in draw order. With `kept_only`, runs none and returns the doses already kept,
+/// whichever draws they are (the page's table names them).
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     base: &Scene,
@@ -60,7 +60,7 @@ pub fn run(
     for k in first..first + n {
         let file = dir.join(format!("draw-{k}.json"));
         if kept_only && !file.is_file() {
-            break;
+            continue;
         }
         let row = crate::lab::policy::file::kept(
             &file,
