@@ -17,7 +17,7 @@ use crate::error::FieldError;
 use crate::math::return_map::{
     cohesion_trace, cohesion_trace_adj, dp_alpha, dp_alpha_adj, dp_project_cohesive,
     dp_project_cohesive_adj, hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj,
-    lame, lame_adj,
+    lame,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -28,15 +28,15 @@ use serde::{Deserialize, Serialize};
 #[serde(deny_unknown_fields)]
 pub struct CohesiveDruckerPrager {
     /// Density (kg/m³). Default 1500.
-    #[serde(default = "default_density")]
+    #[serde(default = "super::drucker_prager::default_density")]
     pub density: f64,
     /// Young's modulus E (Pa).
     pub youngs_modulus: f64,
     /// Poisson's ratio ν. Default 0.3.
-    #[serde(default = "default_poisson")]
+    #[serde(default = "super::drucker_prager::default_poisson")]
     pub poisson_ratio: f64,
     /// Friction angle φ in degrees, in (0, 80). Default 30.
-    #[serde(default = "default_friction")]
+    #[serde(default = "super::drucker_prager::default_friction")]
     pub friction_deg: f64,
     /// Cohesion c (Pa), in [0, E]. Default 0.
     #[serde(default)]
@@ -56,16 +56,6 @@ struct Cache {
     d_lame: [(f64, f64); 2],
     /// `∂α/∂φ` per degree.
     d_alpha: f64,
-}
-
-fn default_density() -> f64 {
-    1500.0
-}
-fn default_poisson() -> f64 {
-    0.3
-}
-fn default_friction() -> f64 {
-    30.0
 }
 
 /// The forward update and the intermediates its adjoint reads (one function for both).
@@ -175,14 +165,12 @@ impl Material for CohesiveDruckerPrager {
         let mut m = self.clone();
         let (mu, lambda) = lame(m.youngs_modulus, m.poisson_ratio);
         let (e, nu) = (m.youngs_modulus, m.poisson_ratio);
-        let (d_mu_de, d_mu_dnu) = lame_adj(e, nu, 1.0, 0.0);
-        let (d_lambda_de, d_lambda_dnu) = lame_adj(e, nu, 0.0, 1.0);
         m.cache = Some(Cache {
             mu,
             lambda,
             alpha: dp_alpha(m.friction_deg),
             tr_c: cohesion_trace(m.cohesion, m.friction_deg, mu, lambda),
-            d_lame: [(d_mu_de, d_lambda_de), (d_mu_dnu, d_lambda_dnu)],
+            d_lame: super::lame_derivatives(e, nu),
             d_alpha: dp_alpha_adj(m.friction_deg, 1.0),
         });
         m

@@ -8,7 +8,7 @@ use super::{
 use crate::error::FieldError;
 use crate::math::return_map::{
     dp_alpha, dp_alpha_adj, dp_project, dp_project_adj, hardened_friction_deg, hencky, hencky_adj,
-    kirchhoff_principal, kirchhoff_principal_adj, lame, lame_adj,
+    kirchhoff_principal, kirchhoff_principal_adj, lame,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -78,13 +78,13 @@ fn project(c: &Cache, sigma: DVec3, alpha: f64) -> Projected {
     }
 }
 
-fn default_density() -> f64 {
+pub(super) fn default_density() -> f64 {
     1500.0
 }
-fn default_poisson() -> f64 {
+pub(super) fn default_poisson() -> f64 {
     0.3
 }
-fn default_friction() -> f64 {
+pub(super) fn default_friction() -> f64 {
     30.0
 }
 
@@ -104,13 +104,11 @@ impl DruckerPrager {
     fn with_cache(mut self) -> Self {
         let (mu, lambda) = lame(self.youngs_modulus, self.poisson_ratio);
         let (e, nu) = (self.youngs_modulus, self.poisson_ratio);
-        let (d_mu_de, d_mu_dnu) = lame_adj(e, nu, 1.0, 0.0);
-        let (d_lambda_de, d_lambda_dnu) = lame_adj(e, nu, 0.0, 1.0);
         self.cache = Some(Cache {
             mu,
             lambda,
             alpha: dp_alpha(self.friction_deg),
-            d_lame: [(d_mu_de, d_lambda_de), (d_mu_dnu, d_lambda_dnu)],
+            d_lame: super::lame_derivatives(e, nu),
             d_alpha: dp_alpha_adj(self.friction_deg, 1.0),
         });
         self

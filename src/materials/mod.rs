@@ -51,6 +51,15 @@ pub struct Param {
     pub fd_step: FdStep,
 }
 
+/// `(∂(μ, λ)/∂E, ∂(μ, λ)/∂ν)` at `(E, ν)`: a parameter gradient is linear in `(∂L/∂μ, ∂L/∂λ)`,
+/// so a material's per-particle adjoint applies these instead of evaluating `lame_adj`.
+pub(crate) fn lame_derivatives(youngs: f64, poisson: f64) -> [(f64, f64); 2] {
+    use crate::math::return_map::lame_adj;
+    let (d_mu_de, d_mu_dnu) = lame_adj(youngs, poisson, 1.0, 0.0);
+    let (d_lambda_de, d_lambda_dnu) = lame_adj(youngs, poisson, 0.0, 1.0);
+    [(d_mu_de, d_lambda_de), (d_mu_dnu, d_lambda_dnu)]
+}
+
 /// Young's modulus `youngs_modulus` (Pa), perturbed by a millionth of its value.
 pub const YOUNGS_MODULUS: Param = Param {
     name: "youngs_modulus",
