@@ -10,8 +10,8 @@
 //! powder (an angle of repose, a shear cell) identifies.
 
 use super::{
-    check_density_and_stiffness, check_range, material_adj, FdStep, Material, Param, Saved,
-    UpdateAdj, Updated, POISSON_RATIO, YOUNGS_MODULUS,
+    check_elastic, check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated,
+    POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
 use crate::math::return_map::{
@@ -182,13 +182,7 @@ impl Material for CohesiveDruckerPrager {
         lame(self.youngs_modulus, self.poisson_ratio)
     }
     fn validate(&self) -> Result<(), FieldError> {
-        check_density_and_stiffness(self.density, self.youngs_modulus)?;
-        check_range(
-            "poisson_ratio",
-            self.poisson_ratio,
-            self.poisson_ratio > -1.0 && self.poisson_ratio < 0.5,
-            "in (-1, 0.5)",
-        )?;
+        check_elastic(self.density, self.youngs_modulus, self.poisson_ratio)?;
         check_range(
             "friction_deg",
             self.friction_deg,

@@ -2,8 +2,8 @@
 //! optional hardening. The maths is in `crate::math::return_map`.
 
 use super::{
-    check_density_and_stiffness, check_range, material_adj, FdStep, Material, Param, Saved,
-    UpdateAdj, Updated, POISSON_RATIO, YOUNGS_MODULUS,
+    check_elastic, check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated,
+    POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
 use crate::math::return_map::{
@@ -151,13 +151,7 @@ impl Material for DruckerPrager {
         self.hardening.is_some()
     }
     fn validate(&self) -> Result<(), FieldError> {
-        check_density_and_stiffness(self.density, self.youngs_modulus)?;
-        check_range(
-            "poisson_ratio",
-            self.poisson_ratio,
-            self.poisson_ratio > -1.0 && self.poisson_ratio < 0.5,
-            "in (-1, 0.5)",
-        )?;
+        check_elastic(self.density, self.youngs_modulus, self.poisson_ratio)?;
         check_range(
             "friction_deg",
             self.friction_deg,

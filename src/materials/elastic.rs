@@ -1,8 +1,7 @@
 //! Elastic solid: StVK in Hencky strain, no plasticity (no return mapping runs).
 
 use super::{
-    check_density_and_stiffness, check_range, material_adj, Material, Param, UpdateAdj,
-    POISSON_RATIO, YOUNGS_MODULUS,
+    check_elastic, material_adj, Material, Param, UpdateAdj, POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
 use crate::math::return_map::{
@@ -52,13 +51,7 @@ impl Material for Elastic {
         lame(self.youngs_modulus, self.poisson_ratio)
     }
     fn validate(&self) -> Result<(), FieldError> {
-        check_density_and_stiffness(self.density, self.youngs_modulus)?;
-        check_range(
-            "poisson_ratio",
-            self.poisson_ratio,
-            self.poisson_ratio > -1.0 && self.poisson_ratio < 0.5,
-            "in (-1, 0.5)",
-        )
+        check_elastic(self.density, self.youngs_modulus, self.poisson_ratio)
     }
     #[inline(always)]
     fn update(&self, sigma: DVec3, _q: &mut f64) -> (Option<DVec3>, DVec3) {

@@ -165,6 +165,18 @@ pub const MAX_DENSITY: f64 = 1e5;
 /// substep vanish.
 pub const MAX_YOUNGS_MODULUS: f64 = 1e13;
 
+/// The checks every StVK-in-Hencky material makes: density and Young's modulus in their ranges
+/// ([`check_density_and_stiffness`]) and Poisson's ratio in (−1, 0.5).
+pub(crate) fn check_elastic(density: f64, youngs: f64, poisson: f64) -> Result<(), FieldError> {
+    check_density_and_stiffness(density, youngs)?;
+    check_range(
+        "poisson_ratio",
+        poisson,
+        poisson > -1.0 && poisson < 0.5,
+        "in (-1, 0.5)",
+    )
+}
+
 /// The density and Young's modulus every material has: positive and within what a material
 /// can be.
 pub(crate) fn check_density_and_stiffness(density: f64, youngs: f64) -> Result<(), FieldError> {
