@@ -225,12 +225,21 @@ pub fn page(rows: &[Row], d: &Dispense, first: usize, planned: usize, threads: &
     if misses.total() > 0 {
         let _ = writeln!(
             s,
-            "What the {} misses beyond ±2 mg come from: {} short after all {} scoops (the \
+            "What the {} beyond ±2 mg {}: {} short after all {} scoops (the \
              spatula's capacity: a scoop of a light powder holds a few milligrams), {} over the \
              target (powder that still left after the spatula turned back, more than the lead \
              allowed for), {} short with scoops to spare (the rule judged the reading done, or \
              the reading lagged the load).\n",
-            misses.total(),
+            if misses.total() == 1 {
+                "one miss".to_string()
+            } else {
+                format!("{} misses", misses.total())
+            },
+            if misses.total() == 1 {
+                "comes from"
+            } else {
+                "come from"
+            },
             misses.out_of_scoops,
             d.max_scoops,
             misses.over,
