@@ -354,7 +354,7 @@ pub fn dose(
         scene.path.display()
     );
     let t0 = Instant::now();
-    skill_tool(scene)?;
+    let tool = skill_tool(scene)?;
     let mut sim = Simulation::new(scene, opts)?;
     let mut rec = match rrd {
         Some(p) => Some(Recorder::create(
@@ -370,7 +370,7 @@ pub fn dose(
         )?),
         None => None,
     };
-    let r = run_dose(scene, sim, target_mg, d, rec.as_mut(), progress, t0);
+    let r = run_dose(scene, tool, sim, target_mg, d, rec.as_mut(), progress, t0);
     match (rec, &r) {
         (Some(rec), Ok(_)) => rec.finish()?,
         (Some(rec), Err(_)) => rec.discard(),
@@ -382,6 +382,7 @@ pub fn dose(
 #[allow(clippy::too_many_arguments)]
 fn run_dose(
     scene: &Scene,
+    (tool, sk): (usize, &SkillSpec),
     sim: Simulation,
     target_mg: f64,
     d: &Dispense,
@@ -389,7 +390,6 @@ fn run_dose(
     progress: &mut dyn FnMut(usize, f64),
     t0: Instant,
 ) -> Result<DoseReport> {
-    let (tool, sk) = skill_tool(scene)?;
     let dt = scene.simulation.dt;
     let (controls, phases) = sk.controls(dt, Scene::tool_bottom(&scene.colliders[tool]));
     let carry: Vec<[f64; 6]> = controls[..phases[..4].iter().sum::<usize>()].to_vec();
