@@ -10,7 +10,7 @@
 
 use glam::DVec3;
 use powderlab::adjoint::tape::{gradient, Gradients, Tape};
-use powderlab::components::{state_fingerprint, BodyState, Grid};
+use powderlab::components::{state_fingerprint, BodyState, Grid, Node};
 use powderlab::scene::Scene;
 use powderlab::sim::Simulation;
 
@@ -63,7 +63,7 @@ fn a_corner_scene_ends_in_the_dense_grids_state_to_the_bit() {
             .active
             .as_ref()
             .expect("a sparse grid tracks its active part");
-        let total = grid.mass.len();
+        let total = grid.node_count();
         // The test is about skipping: the powder reaches well under half of the grid.
         assert!(
             rows.nodes() * 3 < total,
@@ -78,15 +78,13 @@ fn a_corner_scene_ends_in_the_dense_grids_state_to_the_bit() {
         }
         for (i, _) in inside.iter().enumerate().filter(|(_, &a)| !a) {
             assert!(
-                grid.mass[i] == 0.0
-                    && grid.momentum[i] == DVec3::ZERO
-                    && grid.velocity[i] == DVec3::ZERO,
+                grid.nodes[i] == Node::ZERO && grid.velocity[i] == DVec3::ZERO,
                 "node {i} outside the active spans is not zero"
             );
         }
         // And every non-empty node of the dense run is inside them.
         let dense_grid = dense_sim.world.resource::<Grid>();
-        for (i, &m) in dense_grid.mass.iter().enumerate() {
+        for (i, m) in dense_grid.nodes.iter().map(|n| n.mass).enumerate() {
             assert!(
                 m == 0.0 || inside[i],
                 "node {i} has mass {m} outside the spans"

@@ -340,9 +340,9 @@ fn gravity_and_domain_walls() {
     w.run_system_once(systems::p2g::p2g).unwrap();
     // Every node non-empty, so gravity acts everywhere and the walls see real velocities.
     w.resource_mut::<Grid>()
-        .mass
+        .nodes
         .iter_mut()
-        .for_each(|m| *m = 1.0);
+        .for_each(|n| n.mass = 1.0);
     let len = NG * NG * NG;
     let v0 = rng.vs(len);
     let (wv, dv, dg) = (rng.vs(len), rng.vs(len), rng.v());
@@ -475,9 +475,9 @@ fn collider_world(rng: &mut Rng, soft_band: bool) -> (World, Entity, Entity) {
         ColliderAdj::default(),
     ));
     w.resource_mut::<Grid>()
-        .mass
+        .nodes
         .iter_mut()
-        .for_each(|m| *m = 1.0);
+        .for_each(|n| n.mass = 1.0);
     (w, e, tool)
 }
 

@@ -111,8 +111,8 @@ fn p2g_conserves_mass_and_momentum() {
     world.run_system_once(grid_reset).unwrap();
     world.run_system_once(p2g).unwrap();
     let g = world.resource::<Grid>();
-    let mass: f64 = g.mass.iter().sum();
-    let mom: DVec3 = g.momentum.iter().copied().sum();
+    let mass: f64 = g.nodes.iter().map(|n| n.mass).sum();
+    let mom: DVec3 = g.nodes.iter().map(|n| n.momentum).sum();
     let total_m = m * np as f64;
     let total_p: DVec3 = v.iter().map(|v| *v * m).sum();
     assert!(

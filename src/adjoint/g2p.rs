@@ -13,6 +13,7 @@
 use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
 use crate::math::kernel::stencil;
+use crate::math::simd::{vectorized, Kernel};
 use crate::systems::slab_schedule::SLAB;
 use crate::systems::slab_schedule::{Cut, SlabSchedule};
 use bevy_ecs::prelude::*;
@@ -35,10 +36,6 @@ pub fn g2p_adjoint(
         &mut AffineVelocityAdj,
     )>,
 ) {
-    let dx = grid.dx;
-    let inv_dx = 1.0 / dx;
-    let k = 4.0 * inv_dx * inv_dx;
-    let n = grid.n;
     let pl = grid.plane_len();
     let mut bodies: Vec<_> = bodies.iter_mut().collect();
     bodies.sort_by_key(|b| b.0.index);
@@ -58,25 +55,16 @@ pub fn g2p_adjoint(
                 order.slab_start[slab] as usize,
                 order.slab_start[slab + 1] as usize,
             );
-            for (&p, gx) in order.order[s..e].iter().zip(gx_out.iter_mut()) {
-                let p = p as usize;
-                let st = stencil((start.x[p] - grid.origin) / dx);
-                let [bi, bj, bk] = st.base;
-                let (g_v, g_c) = (gvr[p], gcr[p]);
-                // `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight, is affine in the
-                // node offset. The scatter adds it times the weight; `Σ ∇w·v_i·(v̄_p + k·C̄_p·d)`
-                // and `Σ w·v_i` are contracted one axis at a time, and the last term of x̄ is
-                // `−k·C̄ᵀ·Σ w·v_i`, one matrix product per particle.
-                let t = st.affine(g_v, g_c * k, dx);
-                let sums = st.node_sums(inv_dx, |ia, ib, ic| {
-                    let row = ((bi + ia - plane0) * n[1] + bj + ib) * n[2] + bk;
-                    let tn = t.node(t.row(ia, ib), ic);
-                    out[row + ic] += tn * st.weight(ia, ib, ic);
-                    let vi = grid.velocity[grid.index(bi + ia, bj + ib, bk) + ic];
-                    (vi, vi.dot(tn))
-                });
-                *gx = sums.grad_s - g_c.transpose() * sums.w_g * k;
-            }
+            vectorized(ScatterSlab {
+                grid: &grid,
+                plane0,
+                order: &order.order[s..e],
+                x: &start.x,
+                g_v: gvr,
+                g_c: gcr,
+                out,
+                gx_out,
+            })
         };
         schedule.scatter(
             &order.slab_start,
@@ -96,5 +84,51 @@ pub fn g2p_adjoint(
         // G2P overwrote v and C: their adjoints are consumed.
         gv.0.par_iter_mut().for_each(|g| *g = DVec3::ZERO);
         gc.0.par_iter_mut().for_each(|g| *g = DMat3::ZERO);
+    }
+}
+
+/// One slab of the adjoint: the scatter of `v̄_i` into the slab's planes `out` (from x-plane
+/// `plane0`) and the gather of `x̄_p` into `gx_out`, for the slab's particles `order` (through
+/// [`vectorized`]).
+struct ScatterSlab<'a> {
+    grid: &'a Grid,
+    plane0: usize,
+    order: &'a [u32],
+    x: &'a [DVec3],
+    g_v: &'a [DVec3],
+    g_c: &'a [DMat3],
+    out: &'a mut [DVec3],
+    gx_out: &'a mut [DVec3],
+}
+
+impl Kernel for ScatterSlab<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        let Self {
+            grid, plane0, out, ..
+        } = self;
+        let (dx, n) = (grid.dx, grid.n);
+        let inv_dx = 1.0 / dx;
+        let k = 4.0 * inv_dx * inv_dx;
+        for (&p, gx) in self.order.iter().zip(self.gx_out.iter_mut()) {
+            let p = p as usize;
+            let st = stencil((self.x[p] - grid.origin) / dx);
+            let [bi, bj, bk] = st.base;
+            let (g_v, g_c) = (self.g_v[p], self.g_c[p]);
+            // `v̄_p + k·C̄_p·d_ip`, what node `i` receives per unit weight, is affine in the
+            // node offset. The scatter adds it times the weight; `Σ ∇w·v_i·(v̄_p + k·C̄_p·d)`
+            // and `Σ w·v_i` are contracted one axis at a time, and the last term of x̄ is
+            // `−k·C̄ᵀ·Σ w·v_i`, one matrix product per particle.
+            let t = st.affine(g_v, g_c * k, dx);
+            let sums = st.node_sums(inv_dx, |ia, ib, ic| {
+                let row = ((bi + ia - plane0) * n[1] + bj + ib) * n[2] + bk;
+                let tn = t.node(t.row(ia, ib), ic);
+                out[row + ic] += tn * st.weight(ia, ib, ic);
+                let vi = grid.velocity[grid.index(bi + ia, bj + ib, bk) + ic];
+                (vi, vi.dot(tn))
+            });
+            *gx = sums.grad_s - g_c.transpose() * sums.w_g * k;
+        }
     }
 }

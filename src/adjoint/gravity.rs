@@ -21,9 +21,9 @@ pub fn gravity_adjoint(
     // would: the same sum, bit for bit.
     let mut sum = DVec3::ZERO;
     let spans = grid.active.as_ref().map(|a| a.span.as_slice());
-    for_span_ranges(spans, grid.mass.len(), grid.n[2], |r| {
-        for (v, &m) in adj.velocity[r.clone()].iter().zip(&grid.mass[r]) {
-            if m > m_min {
+    for_span_ranges(spans, grid.node_count(), grid.n[2], |r| {
+        for (v, node) in adj.velocity[r.clone()].iter().zip(&grid.nodes[r]) {
+            if node.mass > m_min {
                 sum += *v;
             }
         }

@@ -150,7 +150,7 @@ pub fn collider_contact_adjoint(
         .map(|(c, p, t, _)| (*c, *p, t.filter(|t| t.fits(p, &grid))))
         .collect();
     let node = |idx: usize, g: &mut DVec3, acc: &mut ChunkAdj| {
-        if grid.mass[idx] <= m_min {
+        if grid.nodes[idx].mass <= m_min {
             return;
         }
         let x = grid.node_position(idx);
@@ -226,7 +226,7 @@ pub fn domain_walls_adjoint(
     let m_min = params.empty_node_mass;
     for_wall_nodes(
         &mut adj.velocity,
-        &grid.mass,
+        &grid.nodes,
         m_min,
         n,
         cells,

@@ -207,8 +207,7 @@ pub(crate) struct SubstepRecord {
 struct PackedGrid {
     /// The grid's active spans (`None`: a dense grid, packed whole).
     spans: Option<Vec<[u32; 2]>>,
-    mass: Vec<f64>,
-    momentum: Vec<DVec3>,
+    nodes: Vec<Node>,
     velocity: Vec<DVec3>,
     collider_input: Vec<DVec3>,
     wall_input: Vec<DVec3>,
@@ -236,19 +235,17 @@ impl PackedGrid {
             (Some(a), None) => self.spans = Some(a.span.clone()),
             (None, _) => self.spans = None,
         }
-        let nodes = grid.mass.len();
+        let nodes = grid.node_count();
         let mut count = 0;
         for_span_ranges(self.spans.as_deref(), nodes, grid.n[2], |r| {
             count += r.len()
         });
-        make_room(&mut self.mass, count);
-        make_room(&mut self.momentum, count);
+        make_room(&mut self.nodes, count);
         make_room(&mut self.velocity, count);
         make_room(&mut self.collider_input, count);
         make_room(&mut self.wall_input, count);
         for_span_ranges(self.spans.as_deref(), nodes, grid.n[2], |r| {
-            self.mass.extend_from_slice(&grid.mass[r.clone()]);
-            self.momentum.extend_from_slice(&grid.momentum[r.clone()]);
+            self.nodes.extend_from_slice(&grid.nodes[r.clone()]);
             self.velocity.extend_from_slice(&grid.velocity[r.clone()]);
             // The contact inputs are world-sized where the scene has the stage, else empty.
             if let Some(c) = ci.get(r.clone()) {
@@ -265,18 +262,16 @@ impl PackedGrid {
     fn unpack(&self, world: &mut World) {
         let mut grid = world.resource_mut::<Grid>();
         let g = &mut *grid;
-        let (n, nodes) = (g.n, g.mass.len());
+        let (n, nodes) = (g.n, g.node_count());
         let old = g.active.as_ref().map(|a| a.span.as_slice());
         for_span_ranges(old, nodes, n[2], |r| {
-            g.mass[r.clone()].fill(0.0);
-            g.momentum[r.clone()].fill(DVec3::ZERO);
+            g.nodes[r.clone()].fill(Node::ZERO);
             g.velocity[r].fill(DVec3::ZERO);
         });
         let mut at = 0;
         for_span_ranges(self.spans.as_deref(), nodes, n[2], |r| {
             let k = r.len();
-            g.mass[r.clone()].copy_from_slice(&self.mass[at..at + k]);
-            g.momentum[r.clone()].copy_from_slice(&self.momentum[at..at + k]);
+            g.nodes[r.clone()].copy_from_slice(&self.nodes[at..at + k]);
             g.velocity[r].copy_from_slice(&self.velocity[at..at + k]);
             at += k;
         });

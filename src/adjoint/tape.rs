@@ -243,7 +243,7 @@ fn gradient_in_pool(
         ));
     }
     let start = snapshot(&mut sim.world);
-    let nodes = sim.world.resource::<Grid>().mass.len();
+    let nodes = sim.world.resource::<Grid>().node_count();
     let particles: usize = start.bodies.iter().map(|b| b.x.len()).sum();
     let records_bytes = substeps * SubstepRecord::bytes(particles, nodes);
     let k = match tape {
@@ -406,7 +406,7 @@ fn gradient_in_pool(
 /// Inserts the adjoint buffers, zeroed but for `∂L/∂x(T) = g_x`, and the contact inputs the
 /// recomputation saves; returns the body entities in scene order and the collider entities.
 fn install_adjoint_state(world: &mut World, g_x: Vec<Vec<DVec3>>) -> (Vec<Entity>, Vec<Entity>) {
-    let len = world.resource::<Grid>().mass.len();
+    let len = world.resource::<Grid>().node_count();
     world.insert_resource(GridAdj::new(len));
     world.insert_resource(GravityAdj::default());
     world.insert_resource(NonFiniteSeen::default());

@@ -105,7 +105,7 @@ impl NodeContacts {
     /// stages': the bounding radius plus the band) and keeps the nodes with `φ < band`.
     pub fn build(c: &Collider, pose: &ColliderPose, grid: &crate::components::Grid) -> Self {
         let reach = c.bounding_radius + c.band;
-        let mut slot = vec![0u32; grid.mass.len()];
+        let mut slot = vec![0u32; grid.node_count()];
         let mut hits = Vec::new();
         for (idx, s) in slot.iter_mut().enumerate() {
             let x = grid.node_position(idx);
@@ -219,7 +219,7 @@ mod tests {
         let table = NodeContacts::build(&c, &pose, &grid);
         assert!(table.fits(&pose, &grid));
         let mut hits = 0;
-        for idx in 0..grid.mass.len() {
+        for idx in 0..grid.node_count() {
             let x = grid.node_position(idx);
             let direct = node_contact(&c, &pose, None, idx, x);
             let looked_up = node_contact(&c, &pose, Some(&table), idx, x);

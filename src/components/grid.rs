@@ -16,6 +16,23 @@ pub enum ContactMode {
     Separate,
 }
 
+/// What P2G sums at a grid node: momentum (kg·m/s) and mass (kg), side by side and aligned to
+/// 32 bytes, so that a node's four numbers are one load and one store, one AVX2 register, in the
+/// scatter and in the gathers that read them (`crate::math::simd`).
+#[repr(C, align(32))]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Node {
+    pub momentum: DVec3,
+    pub mass: f64,
+}
+
+impl Node {
+    pub const ZERO: Self = Self {
+        momentum: DVec3::ZERO,
+        mass: 0.0,
+    };
+}
+
 /// Grid nodes, stored with x slowest: `index = (i·ny + j)·nz + k`. The x-major layout makes a
 /// slab of x-planes one contiguous range, which the race-free P2G scatter relies on.
 #[derive(Resource, Clone, Debug)]
@@ -23,10 +40,8 @@ pub struct Grid {
     pub origin: DVec3,
     pub dx: f64,
     pub n: [usize; 3],
-    /// Node mass (kg).
-    pub mass: Vec<f64>,
-    /// Node momentum (kg·m/s), written by P2G.
-    pub momentum: Vec<DVec3>,
+    /// Node mass and momentum, the P2G sums.
+    pub nodes: Vec<Node>,
     /// Node velocity (m/s), `momentum/mass` for nodes heavier than the empty-node threshold.
     pub velocity: Vec<DVec3>,
     /// Whether P2G tracks the part of the grid that particles reach ([`ActiveRows`]), so that
@@ -199,13 +214,18 @@ impl Grid {
             origin,
             dx,
             n,
-            mass: vec![0.0; len],
-            momentum: vec![DVec3::ZERO; len],
+            nodes: vec![Node::ZERO; len],
             velocity: vec![DVec3::ZERO; len],
             sparse: true,
             // The first grid reset zeroes every node and starts the tracking.
             active: None,
         }
+    }
+
+    /// Number of nodes.
+    #[inline(always)]
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
     }
 
     #[inline(always)]

@@ -14,4 +14,5 @@ pub mod mesh;
 pub mod pose;
 pub mod return_map;
 pub mod sdf;
+pub mod simd;
 pub mod svd;

@@ -260,7 +260,10 @@ impl Simulation {
     pub fn work(&mut self, steps: usize) -> crate::scene::WorkEstimate {
         crate::scene::WorkEstimate {
             particles: self.particle_count(),
-            nodes: self.world.resource::<crate::components::Grid>().mass.len(),
+            nodes: self
+                .world
+                .resource::<crate::components::Grid>()
+                .node_count(),
             substeps: self.params().substeps,
             steps,
         }

@@ -9,9 +9,9 @@ pub fn gravity(params: Res<SimParams>, mut grid: ResMut<Grid>) {
     let dv = params.gravity * params.dt_sub;
     let m_min = params.empty_node_mass;
     let g = &mut *grid;
-    let mass = &g.mass;
+    let nodes = &g.nodes;
     for_active_nodes(&mut g.velocity, g.n, g.active.as_ref(), |idx, v| {
-        if mass[idx] > m_min {
+        if nodes[idx].mass > m_min {
             *v += dv;
         }
     });

@@ -44,17 +44,19 @@ pub fn collider_contact(
             }
         }
     };
-    let (mass, active) = (&g.mass, g.active.as_ref());
+    let (nodes, active) = (&g.nodes, g.active.as_ref());
     if let Some(s) = save.as_deref_mut() {
         // The backward driver's recomputation: the input of every node acted on is saved.
         let v = &g.velocity;
         for_active_nodes(&mut s.0, n, active, |idx, s| {
-            if mass[idx] > m_min {
+            if nodes[idx].mass > m_min {
                 *s = v[idx];
             }
         });
     }
-    for_active_nodes(&mut g.velocity, n, active, |idx, v| node(idx, v, mass[idx]));
+    for_active_nodes(&mut g.velocity, n, active, |idx, v| {
+        node(idx, v, nodes[idx].mass)
+    });
 }
 
 /// The inward wall normal along axis `a` of the node at `coord`, if it lies in a wall layer.
@@ -83,7 +85,7 @@ pub fn wall_normal(coord: [usize; 3], n: [usize; 3], cells: usize, a: usize) -> 
 #[inline(always)]
 pub fn for_wall_nodes<T: Send>(
     nodes: &mut [T],
-    mass: &[f64],
+    mass: &[Node],
     m_min: f64,
     n: [usize; 3],
     cells: usize,
@@ -105,7 +107,7 @@ pub fn for_wall_nodes<T: Send>(
                 let row0 = i * plane_len + j * n[2];
                 for (k, node) in row[k0..k1].iter_mut().enumerate() {
                     let k = k0 + k;
-                    if (edge || in_layer(k, 2)) && mass[row0 + k] > m_min {
+                    if (edge || in_layer(k, 2)) && mass[row0 + k].mass > m_min {
                         f([i, j, k], row0 + k, node);
                     }
                 }
@@ -127,13 +129,13 @@ pub fn domain_walls(
         // The backward driver's recomputation: the input of every node acted on is saved (a
         // walk over the wall layers, far cheaper than copying the whole grid).
         let v = &g.velocity;
-        for_wall_nodes(&mut s.0, &g.mass, m_min, n, cells, active, |_, idx, s| {
+        for_wall_nodes(&mut s.0, &g.nodes, m_min, n, cells, active, |_, idx, s| {
             *s = v[idx]
         });
     }
     for_wall_nodes(
         &mut g.velocity,
-        &g.mass,
+        &g.nodes,
         m_min,
         n,
         cells,

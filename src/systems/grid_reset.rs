@@ -7,15 +7,14 @@
 //!
 //! Reads nothing; writes `Grid`.
 
-use crate::components::{for_active_nodes, ActiveRows, Grid};
+use crate::components::{for_active_nodes, ActiveRows, Grid, Node};
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 
 pub fn grid_reset(mut grid: ResMut<Grid>) {
     let g = &mut *grid;
     let (n, active) = (g.n, g.active.as_ref());
-    for_active_nodes(&mut g.mass, n, active, |_, m| *m = 0.0);
-    for_active_nodes(&mut g.momentum, n, active, |_, p| *p = DVec3::ZERO);
+    for_active_nodes(&mut g.nodes, n, active, |_, p| *p = Node::ZERO);
     if g.sparse {
         // A dense P2G writes every node's velocity; a sparse one only the active spans.
         for_active_nodes(&mut g.velocity, n, active, |_, v| *v = DVec3::ZERO);

@@ -94,6 +94,8 @@ pub enum Cut {
     /// A particle array in scatter order: the slab's particles,
     /// `slab_start[s]..slab_start[s + 1]`.
     Particles,
+    /// No second array: `other` is empty and every slab gets it empty.
+    None,
 }
 
 impl SlabSchedule {
@@ -115,6 +117,7 @@ impl SlabSchedule {
         let other_len = match cut {
             Cut::Nodes => nodes.len(),
             Cut::Particles => slab_start.last().map_or(0, |&e| e as usize),
+            Cut::None => 0,
         };
         assert_eq!(
             other.len(),
@@ -128,6 +131,7 @@ impl SlabSchedule {
             let o = match cut {
                 Cut::Nodes => r.clone(),
                 Cut::Particles => slab_start[s] as usize..slab_start[s + 1] as usize,
+                Cut::None => 0..0,
             };
             // SAFETY: slab `s` takes only the planes it writes, which meet those of slabs
             // `s ± 1` alone, and `run` never runs neighbouring slabs at once; the slabs'
