@@ -188,6 +188,11 @@ fn select(m: Lm, a: Lf, b: Lf) -> Lf {
     lanes(|l| if m[l] { a[l] } else { b[l] })
 }
 
+/// From this `|θ|` on (2²⁷), a Jacobi rotation's general formula reduces exactly to
+/// `t = 0.5/θ`, `c = 1`: `θ²` is at least 2⁵⁴, so adding 1 is below half its ulp, and
+/// `|t| ≤ 2⁻²⁸`, so `t²` is below half an ulp of 1.
+const SMALL_ANGLE_THETA: f64 = (1u64 << 27) as f64;
+
 /// [`jacobi_rotate`] on every lane where `active` holds; the other lanes are left untouched.
 /// Each lane computes exactly the operations of the scalar function, so the results are
 /// bitwise equal to it.
@@ -205,16 +210,26 @@ fn jacobi_rotate_lanes(
         mask(|l| apq[l].abs() <= OFF_DIAG_REL * (app[l].abs() + aqq[l].abs()) || apq[l] == 0.0);
     let rot = mask(|l| active[l] && !tiny[l]);
     let theta = lanes(|l| (aqq[l] - app[l]) / (2.0 * apq[l]));
-    let huge = mask(|l| theta[l].abs() > 1e150);
-    let t_huge = lanes(|l| 0.5 / theta[l]);
-    let root = lanes(|l| (theta[l] * theta[l] + 1.0).sqrt());
-    let t = select(
-        huge,
-        t_huge,
-        lanes(|l| theta[l].signum() / (theta[l].abs() + root[l])),
-    );
-    let c = lanes(|l| 1.0 / (t[l] * t[l] + 1.0).sqrt());
-    let s = lanes(|l| t[l] * c[l]);
+    let (t, c, s) = if (0..LANES).all(|l| !rot[l] || theta[l].abs() >= SMALL_ANGLE_THETA) {
+        // Every rotating lane turns by a small angle (as in the last sweep of nearly every
+        // decomposition): there the general formula below gives exactly `t = 0.5/θ`, `c = 1`,
+        // `s = t`, since `θ² + 1` rounds to `θ²`, `√(θ²)` is `|θ|` in IEEE arithmetic, and
+        // `t² + 1` rounds to 1. One division instead of three and two square roots on the
+        // rotation's dependency chain, for the same bits (`small_angle_rotation_is_exact`).
+        let t = lanes(|l| 0.5 / theta[l]);
+        (t, [1.0; LANES], t)
+    } else {
+        let huge = mask(|l| theta[l].abs() > 1e150);
+        let t_huge = lanes(|l| 0.5 / theta[l]);
+        let root = lanes(|l| (theta[l] * theta[l] + 1.0).sqrt());
+        let t = select(
+            huge,
+            t_huge,
+            lanes(|l| theta[l].signum() / (theta[l].abs() + root[l])),
+        );
+        let c = lanes(|l| 1.0 / (t[l] * t[l] + 1.0).sqrt());
+        (t, c, lanes(|l| t[l] * c[l]))
+    };
     a[p][p] = select(rot, lanes(|l| app[l] - t[l] * apq[l]), app);
     a[q][q] = select(rot, lanes(|l| aqq[l] + t[l] * apq[l]), aqq);
     let off = select(active, [0.0; LANES], apq);

@@ -254,3 +254,36 @@ fn lanes_are_bitwise_equal_to_scalar() {
         }
     }
 }
+
+/// The small-angle shortcut of the lane rotation is the general formula's result to the bit:
+/// for every `|θ| ≥ 2²⁷` (below the 1e150 branch), `sign(θ)/(|θ| + √(θ² + 1))` is `0.5/θ` and
+/// `1/√(t² + 1)` is 1. Checked over every binade from 2²⁷ up, with random mantissas and both
+/// signs, and at the bound itself.
+#[test]
+fn small_angle_rotation_is_exact() {
+    let mut seed = 5u64;
+    let mut checked = 0;
+    for e in 27..=497 {
+        for k in 0..2000 {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let m = if k == 0 {
+                1.0
+            } else {
+                1.0 + (seed >> 11) as f64 / (1u64 << 53) as f64
+            };
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let theta = sign * m * 2f64.powi(e);
+            assert!(theta.abs() >= SMALL_ANGLE_THETA && theta.abs() <= 1e150);
+            let root = (theta * theta + 1.0).sqrt();
+            let t = theta.signum() / (theta.abs() + root);
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            assert_eq!(t.to_bits(), (0.5 / theta).to_bits(), "θ = {theta:e}");
+            assert_eq!(c, 1.0, "θ = {theta:e}");
+            assert_eq!((t * c).to_bits(), t.to_bits());
+            checked += 1;
+        }
+    }
+    assert!(checked > 900_000);
+}
