@@ -27,6 +27,7 @@ LEVERS = [
     ("records keep the principal stress, not the P2G affine term", "7bb2c24", "9e224e2", "memory"),
     ("4-wide grid nodes, transfer loops compiled for AVX2", "68347f7", "e34eb12", "forward"),
     ("4-wide grid nodes, transfer loops compiled for AVX2", "68347f7", "e34eb12", "backward"),
+    ("small-angle Jacobi rotations in the SVD", "e34eb12", "683a78f", "forward"),
 ]
 BEFORE = "5b8b95d"  # the build before this page's levers
 
