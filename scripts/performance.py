@@ -79,7 +79,10 @@ def main():
     res = {}
     t0 = time.time()
     print("building", file=sys.stderr)
-    exe = {c: build(c, out / f"powderlab-{c}") for c in {BEFORE, *[l[1] for l in LEVERS]}}
+    commits = {BEFORE, *[l[1] for l in LEVERS], *[l[2] for l in LEVERS]}
+    exe = {c: build(c, out / f"powderlab-{c}") for c in commits}
+    # This tree last: the trees share the target directory, so the binary left in it after the
+    # run is this tree's, not a lever commit's.
     exe["now"] = build(None, out / "powderlab-now")
 
     print("taichi", file=sys.stderr)
@@ -127,7 +130,7 @@ def main():
     lev["active-block grid (sand_box)"] = rows
     for name, without, with_, kind in LEVERS:
         rows = []
-        w_exe = build(with_, out / f"powderlab-{with_}")
+        w_exe = exe[with_]
         for _ in range({"forward": a.pairs, "backward": 3}.get(kind, 1)):
             if kind == "forward":
                 on = bench(w_exe, "sand_box.ron", "--threads", "2")
