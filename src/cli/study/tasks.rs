@@ -476,6 +476,11 @@ pub(super) fn weighing_cmd(a: args::Weighing) -> Result<()> {
         &opts,
         &dir,
         a.page_only,
+        &mut |k, step, mg| {
+            if step.is_multiple_of(10) {
+                pb.set_message(format!("draw {k}: step {step}, balance {mg:.1} mg"));
+            }
+        },
         &mut |rows| {
             pb.set_position(rows.len() as u64);
             weighing::plot(rows, &a.page.results.join("weighing.svg"))?;

@@ -34,9 +34,10 @@ pub struct Row {
 }
 
 /// Runs (or resumes) the rule `d` on held-out draws `first..first + n` of `base`, one after the
-/// other (each dose uses the pool of `opts`), in `dir`; `done(rows)` after each draw, with the
-/// rows so far in draw order. With `kept_only`, runs none and returns the doses already kept,
-/// whichever draws they are (the page's table names them).
+/// other (each dose uses the pool of `opts`), in `dir`; `step(draw, step, reading_mg)` after
+/// every step of a dose, and `done(rows)` after each draw, with the rows so far in draw order.
+/// With `kept_only`, runs none and returns the doses already kept, whichever draws they are (the
+/// page's table names them).
 #[allow(clippy::too_many_arguments)]
 pub fn run(
     base: &Scene,
@@ -46,6 +47,7 @@ pub fn run(
     opts: &SimOptions,
     dir: &Path,
     kept_only: bool,
+    step: &mut dyn FnMut(usize, usize, f64),
     done: &mut dyn FnMut(&[Row]) -> anyhow::Result<()>,
 ) -> anyhow::Result<Vec<Row>> {
     crate::util::create_output_dir(dir, "--out")?;
@@ -68,7 +70,8 @@ pub fn run(
             || {
                 let draw = draw_scene(spec, base, HELD_OUT_STREAM, k);
                 let scene = spec.apply(base, &draw)?;
-                let dose = weigh::dose(&scene, draw.target_g * 1e3, d, opts, None, &mut |_, _| {})?;
+                let mut progress = |n: usize, mg: f64| step(k, n, mg);
+                let dose = weigh::dose(&scene, draw.target_g * 1e3, d, opts, None, &mut progress)?;
                 Ok(Row {
                     draw: k,
                     powder: draw,
@@ -154,10 +157,11 @@ pub fn page(rows: &[Row], d: &Dispense, first: usize, planned: usize, threads: &
     let _ = writeln!(s, "# Weighing milligram doses onto a balance\n");
     let _ = writeln!(
         s,
-        "Regenerate: `powderlab study weighing --threads 1 --draws {planned}` (it keeps each \
+        "Regenerate: `powderlab study weighing --threads 2 --draws {planned}` (it keeps each \
          dose in `study/weighing/` and resumes from there; `--page-only` rewrites this page from \
          the doses kept).  \n\
-         Machine: AMD EPYC with AVX-512, 2 vCPUs, 23 GiB, a KVM guest; each dose on {threads}. \
+         Machine: AMD EPYC with AVX-512, 2 vCPUs, 23 GiB, a KVM guest; this run's doses on \
+         {threads} (the table gives each dose's own). \
          The wall times below are of doses run beside other work on the same two vCPUs, so \
          they are longer than a dose alone takes (about 8 min on two threads, \
          `powderlab weigh`).\n"
@@ -250,13 +254,13 @@ pub fn page(rows: &[Row], d: &Dispense, first: usize, planned: usize, threads: &
     let _ = writeln!(s, "## Every dose\n");
     let _ = writeln!(
         s,
-        "| draw | friction | density | fill | grain | target | delivered | error | scoops | taps | simulated | wall |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "| draw | friction | density | fill | grain | target | delivered | error | scoops | taps | simulated | wall | threads |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     );
     for r in rows {
         let (p, d) = (&r.powder, &r.dose);
         let _ = writeln!(
             s,
-            "| {} | {:.1}° | {:.0} kg/m³ | {:.1} mm | {:.3} mg | {:.1} mg | {:.2} mg | {:+.2} mg | {} | {} | {:.1} s | {:.0} s |",
+            "| {} | {:.1}° | {:.0} kg/m³ | {:.1} mm | {:.3} mg | {:.1} mg | {:.2} mg | {:+.2} mg | {} | {} | {:.1} s | {:.0} s | {} |",
             r.draw,
             p.friction_deg,
             p.density,
@@ -268,7 +272,9 @@ pub fn page(rows: &[Row], d: &Dispense, first: usize, planned: usize, threads: &
             d.scoops,
             d.taps,
             d.sim_s,
-            d.wall_s
+            d.wall_s,
+            d.threads
+                .map_or_else(|| "not recorded".into(), |t| t.to_string())
         );
     }
     let _ = writeln!(s, "\n## The rule's settings\n");
@@ -370,6 +376,7 @@ mod tests {
                 taps: 0,
                 sim_s: 10.0,
                 wall_s: 100.0,
+                threads: Some(1),
                 steps: 1000,
                 particle_substeps: 1e9,
                 grain_mg: 0.1,

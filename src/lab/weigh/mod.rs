@@ -217,6 +217,9 @@ pub struct DoseReport {
     /// Simulated time of the dose (s).
     pub sim_s: f64,
     pub wall_s: f64,
+    /// Worker threads the dose ran on (`None` in doses kept before it was recorded).
+    #[serde(default)]
+    pub threads: Option<usize>,
     pub steps: usize,
     pub particle_substeps: f64,
     /// Mass of one grain (mg).
@@ -509,6 +512,7 @@ fn run_dose(
         taps: run.taps,
         sim_s: steps as f64 * dt,
         wall_s: t0.elapsed().as_secs_f64(),
+        threads: Some(run.sim.threads()),
         steps,
         particle_substeps: particles * steps as f64 * run.sim.params().substeps as f64,
         grain_mg,
