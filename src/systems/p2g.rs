@@ -150,17 +150,17 @@ pub fn scatter_particle(
 
 /// One slab's particles, `order`, scattered into its nodes, `nodes`, which start at x-plane
 /// `plane0` (through [`vectorized`]).
-pub struct ScatterSlab<'a> {
-    pub origin: DVec3,
-    pub dx: f64,
-    pub n: [usize; 3],
-    pub plane0: usize,
-    pub nodes: &'a mut [Node],
-    pub order: &'a [u32],
-    pub x: &'a [DVec3],
-    pub v: &'a [DVec3],
-    pub affine: &'a [DMat3],
-    pub m: f64,
+struct ScatterSlab<'a> {
+    origin: DVec3,
+    dx: f64,
+    n: [usize; 3],
+    plane0: usize,
+    nodes: &'a mut [Node],
+    order: &'a [u32],
+    x: &'a [DVec3],
+    v: &'a [DVec3],
+    affine: &'a [DMat3],
+    m: f64,
 }
 
 impl Kernel for ScatterSlab<'_> {
