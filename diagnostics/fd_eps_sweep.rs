@@ -13,7 +13,7 @@
 //! whether the loss really is that steep there.
 
 use powderlab::lab::optim::problem::Problem;
-use powderlab::lab::study::{along, parse_theta, regrid};
+use powderlab::lab::study::error_vs_time::{along, parse_theta, regrid};
 use powderlab::scene::Scene;
 use rayon::prelude::*;
 

@@ -13,7 +13,8 @@
 //!   paper's learning rate.
 
 use powderlab::lab::optim::problem::Problem;
-use powderlab::lab::study::{cosine, norm, secant_thetas};
+use powderlab::lab::optim::study::directions::secant_thetas;
+use powderlab::lab::stats::{cosine, norm};
 use powderlab::scene::Scene;
 use powderlab::skills::Theta;
 use rayon::prelude::*;

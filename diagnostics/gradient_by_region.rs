@@ -26,8 +26,10 @@
 use glam::DVec3;
 use powderlab::adjoint::loss::Loss;
 use powderlab::lab::optim::problem::Problem;
+use powderlab::lab::optim::study::directions::secant_thetas;
 use powderlab::lab::optim::theta_init;
-use powderlab::lab::study::{cosine, norm, parse_theta, secant_thetas};
+use powderlab::lab::stats::{cosine, norm};
+use powderlab::lab::study::error_vs_time::parse_theta;
 use powderlab::math::sdf::Shape;
 use powderlab::scene::Scene;
 use powderlab::skills::Theta;

@@ -11,7 +11,7 @@
 //! from end to end, the total variation, the share of the total variation in the steepest
 //! quarter of the intervals, and how many intervals go against the rise.
 use powderlab::lab::optim::problem::Problem;
-use powderlab::lab::study::parse_theta;
+use powderlab::lab::study::error_vs_time::parse_theta;
 use powderlab::scene::Scene;
 use rayon::prelude::*;
 

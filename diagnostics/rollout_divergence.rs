@@ -22,7 +22,7 @@
 //! passes `SWITCH` is reported with that particle's distance to every collider.
 
 use powderlab::lab::optim::problem::Problem;
-use powderlab::lab::study::{along, parse_theta, regrid};
+use powderlab::lab::study::error_vs_time::{along, parse_theta, regrid};
 use powderlab::scene::Scene;
 
 /// `max|Δ₂ − 2Δ₁| / max|Δ₁|` above which a step counts as non-linear in ε: a smooth trajectory

@@ -10,7 +10,7 @@
 //! ```
 use powderlab::components::ColliderKind;
 use powderlab::lab::optim::problem::Problem;
-use powderlab::lab::study::parse_theta;
+use powderlab::lab::study::error_vs_time::parse_theta;
 use powderlab::scene::Scene;
 
 fn main() -> anyhow::Result<()> {

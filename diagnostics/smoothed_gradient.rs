@@ -11,7 +11,8 @@
 //! and the cosine of their mean (first-order randomised smoothing, Suh et al. 2022). The sizes
 //! of the sampled gradients are what `docs/results/skill_optimisation.md` discusses.
 use powderlab::lab::optim::problem::Problem;
-use powderlab::lab::study::{cosine, norm, parse_theta};
+use powderlab::lab::stats::{cosine, norm};
+use powderlab::lab::study::error_vs_time::parse_theta;
 use powderlab::scene::Scene;
 use powderlab::skills::Theta;
 use powderlab::util::SplitMix64;

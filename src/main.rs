@@ -59,8 +59,8 @@ enum Command {
     /// balance reads the target; prints target, delivered mass, error and scoops.
     #[cfg(feature = "lab")]
     Weigh(cli::weigh::Args),
-    /// Accuracy and cost: `error-vs-time` (resolution sweeps) or `growth` (time per substep
-    /// against the problem size).
+    /// The studies behind docs/results/, one subcommand each (`powderlab study --help` lists
+    /// them).
     #[cfg(feature = "lab")]
     Study(cli::study::Args),
 }

@@ -175,6 +175,33 @@ pub fn fnv1a(text: &str) -> String {
     format!("{h:016x}")
 }
 
+/// Parses `--threads`: 0 (all cores) up to [`crate::scene::MAX_THREADS`].
+pub fn threads_arg(s: &str) -> Result<usize, String> {
+    let max = crate::scene::MAX_THREADS;
+    match s.parse::<usize>() {
+        Ok(n) if n <= max => Ok(n),
+        _ => Err(format!(
+            "expected a whole number from 0 (all cores) to {max}, got '{s}'"
+        )),
+    }
+}
+
+/// A progress bar of `len` units, hidden when `quiet`.
+pub fn progress_bar(len: u64, quiet: bool) -> indicatif::ProgressBar {
+    if quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(len);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:40}] {pos}/{len} {msg} (eta {eta})",
+        )
+        .expect("static template")
+        .progress_chars("=> "),
+    );
+    pb
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

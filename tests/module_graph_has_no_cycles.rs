@@ -168,7 +168,8 @@ fn edges(mods: &BTreeMap<String, String>) -> BTreeMap<String, BTreeSet<String>> 
         let dir = mods.keys().any(|m| m.starts_with(&format!("{me}::"))) || me.is_empty();
         for p in paths(&code(src)) {
             if let Some(to) = resolve(&p, me, dir, mods) {
-                if !related(me, &to) {
+                // A module naming itself (a `$crate::` path in its own macro) is no import.
+                if !related(me, &to) && *me != to {
                     edges.entry(me.clone()).or_default().insert(to);
                 }
             }

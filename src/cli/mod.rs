@@ -25,50 +25,8 @@ pub mod validate;
 #[cfg(feature = "lab")]
 pub mod weigh;
 
-use indicatif::{ProgressBar, ProgressStyle};
 use powderlab::sim::Simulation;
-
-/// Parses `--threads`: 0 (all cores) up to [`powderlab::scene::MAX_THREADS`].
-pub fn threads_arg(s: &str) -> Result<usize, String> {
-    let max = powderlab::scene::MAX_THREADS;
-    match s.parse::<usize>() {
-        Ok(n) if n <= max => Ok(n),
-        _ => Err(format!(
-            "expected a whole number from 0 (all cores) to {max}, got '{s}'"
-        )),
-    }
-}
-
-/// A progress bar of `len` units, hidden when `quiet`.
-pub fn bar(len: u64, quiet: bool) -> ProgressBar {
-    if quiet {
-        return ProgressBar::hidden();
-    }
-    let pb = ProgressBar::new(len);
-    pb.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} {msg} (eta {eta})")
-            .expect("static template")
-            .progress_chars("=> "),
-    );
-    pb
-}
-
-/// Prints, before a study starts, the work of `rollouts` forward rollouts' worth of `scene` at
-/// its own horizon: what `simulate` prints for one run, and the total at the reference rate.
-/// A rollout of a skill scene runs to a horizon that depends on Θ, so this is about the size.
-pub fn announce_work(scene: &std::path::Path, rollouts: f64) -> anyhow::Result<()> {
-    let mut sim = Simulation::from_file(scene, &powderlab::sim::SimOptions::default())?;
-    let one = sim.work(sim.horizon);
-    let all = one.times(rollouts);
-    eprintln!(
-        "work: {}: {rollouts:.0} forward rollouts' worth of {}; in all {:.2e} particle-substeps, about {} at that rate",
-        scene.display(),
-        one.describe(),
-        all.particle_substeps(),
-        all.duration()
-    );
-    Ok(())
-}
+pub use powderlab::util::{progress_bar as bar, threads_arg};
 
 /// Prints what the stability guard found and whether it raised the substeps.
 pub fn describe_stability(sim: &Simulation) {

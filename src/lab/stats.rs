@@ -149,6 +149,16 @@ pub fn sign_test(a: &[bool], b: &[bool]) -> Option<f64> {
     Some(tail / 2f64.powi(n as i32))
 }
 
+/// Euclidean length.
+pub fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+/// The cosine of the angle between `a` and `b` (NaN when either is zero).
+pub fn cosine(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>() / (norm(a) * norm(b))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

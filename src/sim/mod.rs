@@ -316,3 +316,20 @@ pub fn collider_poses(world: &mut World) -> Vec<(String, ColliderKind, Shape, Po
     v.sort_by_key(|e| e.0);
     v.into_iter().map(|e| e.1).collect()
 }
+
+/// Prints, before a study starts, the work of `rollouts` forward rollouts' worth of `scene` at
+/// its own horizon: what `simulate` prints for one run, and the total at the reference rate.
+/// A rollout of a skill scene runs to a horizon that depends on Θ, so this is about the size.
+pub fn announce_work(scene: &std::path::Path, rollouts: f64) -> anyhow::Result<()> {
+    let mut sim = Simulation::from_file(scene, &SimOptions::default())?;
+    let one = sim.work(sim.horizon);
+    let all = one.times(rollouts);
+    eprintln!(
+        "work: {}: {rollouts:.0} forward rollouts' worth of {}; in all {:.2e} particle-substeps, about {} at that rate",
+        scene.display(),
+        one.describe(),
+        all.particle_substeps(),
+        all.duration()
+    );
+    Ok(())
+}

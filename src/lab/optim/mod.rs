@@ -54,6 +54,7 @@ pub mod rmsprop;
 mod runner;
 pub mod sac;
 pub mod smoothing;
+pub mod study;
 
 use crate::skills::Theta;
 use crate::util::{write_atomic, SplitMix64};

@@ -6,6 +6,7 @@ use super::report::curve;
 use super::Method;
 use crate::lab::chart;
 use crate::lab::stats::mean_sd as mean_std;
+use plotters::coord::combinators::IntoLogRange;
 use plotters::prelude::*;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -105,6 +106,74 @@ pub fn indicator_svg(
                 .legend(chart::key(c.stroke_width(2)));
         }
         chart::legend(&mut chart, SeriesLabelPosition::UpperRight, None)?;
+        Ok(())
+    })
+}
+
+/// A task's curves, for the figure.
+pub struct Curves {
+    pub title: String,
+    pub unit: String,
+    pub by_compute: std::collections::BTreeMap<Method, Vec<(f64, f64)>>,
+    pub by_rollouts: std::collections::BTreeMap<Method, Vec<(f64, f64)>>,
+}
+
+/// `optimisation.svg`: per task, the median best-so-far dose error against particle-substeps
+/// (left) and against rollouts (right), log scale.
+pub fn optimisation_figure(path: &std::path::Path, tasks: &[Curves]) -> anyhow::Result<()> {
+    chart::write_svg(path, (1100, 380 * tasks.len().max(1) as u32), |root| {
+        let rows = root.split_evenly((tasks.len().max(1), 2));
+        for (i, t) in tasks.iter().enumerate() {
+            for (j, (curves, xdesc)) in [
+                (&t.by_compute, "particle-substeps per seed (G)"),
+                (&t.by_rollouts, "rollouts per seed"),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                let area = &rows[2 * i + j];
+                let xs = if j == 0 { 1e-9 } else { 1.0 };
+                let x_hi = curves
+                    .values()
+                    .flatten()
+                    .map(|p| p.0 * xs)
+                    .fold(0.0, f64::max);
+                let x_hi = if x_hi > 0.0 { x_hi } else { 1.0 };
+                let ys: Vec<f64> = curves
+                    .values()
+                    .flatten()
+                    .map(|p| p.1)
+                    .filter(|y| *y > 0.0)
+                    .collect();
+                let y_lo = ys.iter().copied().fold(f64::INFINITY, f64::min).min(0.01) * 0.8;
+                let y_hi = ys.iter().copied().fold(0.0, f64::max).max(0.1) * 1.25;
+                let mut chart = ChartBuilder::on(area)
+                    .caption(
+                        format!("{}: median best dose error ({})", t.title, t.unit),
+                        ("sans-serif", 14),
+                    )
+                    .margin(10)
+                    .x_label_area_size(36)
+                    .y_label_area_size(52)
+                    .build_cartesian_2d(0f64..x_hi, (y_lo..y_hi).log_scale())?;
+                chart
+                    .configure_mesh()
+                    .x_desc(xdesc)
+                    .y_desc(format!("dose error ({})", t.unit))
+                    .draw()?;
+                for (m, v) in curves {
+                    let c = colour(*m);
+                    chart
+                        .draw_series(LineSeries::new(
+                            v.iter().map(|&(x, y)| (x * xs, y.max(y_lo))),
+                            c.stroke_width(2),
+                        ))?
+                        .label(m.name())
+                        .legend(chart::key(c.stroke_width(2)));
+                }
+                chart::legend(&mut chart, SeriesLabelPosition::UpperRight, None)?;
+            }
+        }
         Ok(())
     })
 }

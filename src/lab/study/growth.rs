@@ -22,6 +22,7 @@ use crate::lab::chart;
 use crate::scene::{BodySpec, Fill, Scene};
 use crate::sim::{SimOptions, Simulation};
 use crate::util::{peak_rss_bytes, write_atomic};
+use anyhow::Context;
 use plotters::coord::combinators::IntoLogRange;
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -412,6 +413,126 @@ fn svg(path: &Path, results: &[GrowthResult]) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+/// Time per substep against the particle count and the grid (growth.{json,csv,svg}).
+pub struct Growth;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: crate::lab::study::args::Common,
+    #[command(flatten)]
+    pub run: crate::lab::study::args::Run,
+    /// Run one configuration (JSON) and print its result (in a process of its own).
+    #[arg(long, hide = true)]
+    pub config: Option<String>,
+}
+crate::study_settings!(Args);
+
+/// The scene every configuration varies.
+const BASE_SCENE: &str = "scenes/sand_box.ron";
+
+impl crate::lab::study::Study for Growth {
+    const NAME: &'static str = "growth";
+    const ABOUT: &'static str =
+        "Time per substep against the particle count and the grid (growth.{json,csv,svg})";
+    type Args = Args;
+    type Outcome = Vec<GrowthResult>;
+
+    fn child(a: &Args) -> Option<anyhow::Result<()>> {
+        let c = a.config.as_ref()?;
+        Some((|| {
+            let base = Scene::load(BASE_SCENE)?;
+            let cfg: GrowthConfig = serde_json::from_str(c).context("--config")?;
+            println!("{}", serde_json::to_string(&run_config(&base, &cfg)?)?);
+            Ok(())
+        })())
+    }
+
+    fn run(a: &Args, ctx: crate::lab::study::Ctx) -> anyhow::Result<Vec<GrowthResult>> {
+        let base = Scene::load(BASE_SCENE)?;
+        let plan = plan(a.run.quick, a.run.threads.or(Some(2)));
+        for cfg in &plan {
+            growth_scene(&base, cfg)?;
+        }
+        let exe = std::env::current_exe().context("cannot find this executable")?;
+        crate::util::create_output_dir(&a.common.out, "--out")?;
+        let outputs = GrowthOutputs::in_dir(&a.common.out);
+        let pb = ctx.bar(plan.len() as u64);
+        let mut results = Vec::new();
+        for cfg in &plan {
+            pb.set_message(format!("{:?} {} cells", cfg.series, cfg.cells));
+            let r: GrowthResult = crate::lab::study::run_in_child(&exe, Self::NAME, cfg)
+                .with_context(|| format!("growth configuration {cfg:?} failed"))?;
+            results.push(r);
+            // Everything measured so far is on disk, whenever the study is stopped.
+            write_outputs(&outputs, &results)?;
+            pb.inc(1);
+        }
+        pb.finish_and_clear();
+        Ok(results)
+    }
+
+    fn page(
+        a: &Args,
+        results: Vec<GrowthResult>,
+        _ctx: crate::lab::study::Ctx,
+    ) -> anyhow::Result<crate::lab::study::Report> {
+        use std::fmt::Write;
+        let outputs = GrowthOutputs::in_dir(&a.common.out);
+        let spread = particle_series_spread(&results);
+        let gain = active_grid_gain(&results);
+        let (grown, grown_dense) = (
+            grid_series_growth(&results, Series::Grid),
+            grid_series_growth(&results, Series::GridDense),
+        );
+        let mut text = csv(&results);
+        if let Some(s) = spread {
+            let _ = writeln!(
+                text,
+                "particle series: fastest/slowest throughput {s:.3} (flat within 20 % is ≤ 1.2: {})",
+                if s <= 1.2 { "PASS" } else { "FAIL" }
+            );
+        }
+        if let (Some(g), Some(d)) = (grown, grown_dense) {
+            let _ = writeln!(
+                text,
+                "grid series: largest over smallest grid's time per substep {g:.2} (dense sweeps {d:.2})"
+            );
+        }
+        for (cells, r, same) in &gain {
+            let _ = writeln!(
+                text,
+                "{cells}³ grid: dense sweeps take {r:.2}× the active grid's time; final states {}",
+                if *same { "equal to the bit" } else { "DIFFER" }
+            );
+        }
+        Ok(crate::lab::study::Report {
+            text,
+            wrote: format!(
+                "{} configurations: {}, {} and {}",
+                results.len(),
+                outputs.csv.display(),
+                outputs.svg.display(),
+                outputs.results.display()
+            ),
+            dir: a.common.out.clone(),
+            json: serde_json::json!({
+                "results": results,
+                "particle_series_max_over_min_throughput": spread,
+                "grid_series_largest_over_smallest": grown,
+                "grid_dense_series_largest_over_smallest": grown_dense,
+                "active_grid_gain": gain
+                    .iter()
+                    .map(|(c, r, same)| serde_json::json!({"cells": c, "dense_over_active": r, "same_bits": same}))
+                    .collect::<Vec<_>>(),
+                "csv": outputs.csv,
+                "svg": outputs.svg,
+            }),
+            failed: false,
+        })
+    }
 }
 
 #[cfg(test)]

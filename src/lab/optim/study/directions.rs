@@ -10,12 +10,13 @@
 //! Every rollout is appended to `rollouts.jsonl` in the output folder as it finishes, so a
 //! killed study resumes where it stopped.
 
-use super::cosine;
 use crate::adjoint::loss::scene_loss;
 use crate::lab::optim::problem::Problem;
+use crate::lab::stats::cosine;
 use crate::scene::{LossSpec, TargetValue};
 use crate::skills::Theta;
 use crate::util::write_atomic;
+use crate::util::SplitMix64;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -81,7 +82,7 @@ pub fn default_points(landscape_csv: Option<&Path>) -> Vec<(String, Theta)> {
     let mut v: Vec<(String, Theta)> = (0..3)
         .map(|k| (format!("seed{k}"), crate::lab::optim::theta_init(k)))
         .chain(
-            super::secant_thetas(6)
+            secant_thetas(6)
                 .into_iter()
                 .enumerate()
                 .map(|(k, t)| (format!("rand{k}"), t)),
@@ -250,7 +251,7 @@ pub fn report(rows: &[Row], steps: &[f64], command: &str, unit: &str) -> String 
         "# Direction test: does a loss's gradient point where the dose error falls?\n\n",
     );
     let _ = writeln!(s, "Regenerate: `{command}`  ");
-    let _ = writeln!(s, "Machine: {}.\n", super::optimizers::machine());
+    let _ = writeln!(s, "Machine: {}.\n", crate::lab::study::machine());
     let _ = writeln!(
         s,
         "At each Θ, the cosine between the adjoint gradient of a loss and the secant gradient of the dose error |indicator| ({unit}) at step h (central, clamped to the box). 1: descending the loss descends the dose error; 0: unrelated; −1: it climbs it. NaN: a zero gradient or a flat secant.\n"
@@ -327,6 +328,16 @@ pub fn write(rows: &[Row], md: &str, dir: &Path) -> anyhow::Result<()> {
     write_atomic(&dir.join("directions.csv"), csv.as_bytes())?;
     write_atomic(&dir.join("directions.md"), md.as_bytes())?;
     Ok(())
+}
+
+/// The first `n` random Θ at which the diagnostic examples take secants: uniform in
+/// [−0.8, 0.8]⁵ from a fixed generator, so that `gradient_at_scale`'s point `k` and
+/// `gradient_by_region`'s `randK` are the same Θ.
+pub fn secant_thetas(n: usize) -> Vec<Theta> {
+    let mut rng = SplitMix64(1234);
+    (0..n)
+        .map(|_| Theta(std::array::from_fn(|_| rng.uniform_in(-0.8, 0.8))))
+        .collect()
 }
 
 #[cfg(test)]

@@ -1,10 +1,11 @@
 //! The benchmark's page: how it was made, each task's verdict and table.
 
-use super::{machine, StudyOptions, TaskResult, BASELINES};
+use super::{StudyOptions, TaskResult, BASELINES};
 use crate::lab::optim::Method;
 use crate::lab::stats::mean_sd as mean_std;
 use crate::lab::stats::median;
 use crate::lab::stats::{p_text, ALPHA};
+use crate::lab::study::machine;
 
 /// The page: how it was made, the verdict per task, the tables.
 pub fn page(o: &StudyOptions, results: &[TaskResult]) -> String {

@@ -283,20 +283,6 @@ pub struct StudyOptions {
     pub quiet: bool,
 }
 
-/// The processor's name and the worker threads, for the page's header.
-pub fn machine() -> String {
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|t| {
-            t.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split(':').nth(1))
-                .map(|s| s.trim().to_string())
-        })
-        .unwrap_or_else(|| "unknown processor".into());
-    format!("{cpu}, {} worker threads", rayon::current_num_threads())
-}
-
 /// Runs every task (resuming each from its journal) and writes the page; returns its text.
 pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
     use crate::lab::optim::{self, problem::Problem};
@@ -382,7 +368,7 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
                 let _ = writeln!(csv, "{stem},{},{k},{c},{e}", row.method.name());
             }
         }
-        curves.push(super::plot::Curves {
+        curves.push(crate::lab::optim::plot::Curves {
             title: format!("{stem} ({target} {unit})"),
             unit: unit.clone(),
             by_compute: median_curves(&r.records, true, 60),
@@ -392,7 +378,7 @@ pub fn run(o: &StudyOptions) -> anyhow::Result<String> {
     }
     crate::util::create_output_dir(&o.results, "--results")?;
     let file = |ext: &str| o.results.join(format!("{}.{ext}", o.page));
-    super::plot::optimisation_figure(&file("svg"), &curves)?;
+    crate::lab::optim::plot::optimisation_figure(&file("svg"), &curves)?;
     crate::util::write_atomic(&file("csv"), csv.as_bytes())?;
     let md = page(o, &results);
     crate::util::write_atomic(&file("md"), md.as_bytes())?;

@@ -178,7 +178,7 @@ pub fn page(rows: &[Row], d: &Dispense, first: usize, planned: usize, threads: &
     );
     let _ = writeln!(
         s,
-        "**Draws.** Held-out draws {first}–{} of their own stream (`study::weighing::HELD_OUT_STREAM`). \
+        "**Draws.** Held-out draws {first}–{} of their own stream (`weigh::study::HELD_OUT_STREAM`). \
          Nothing was chosen on them: the rule's settings below were chosen on the scene's own \
          powder (35°, 1,500 kg/m³, one 20 mg dose), which is not a draw of this stream. \
          **{} of the {planned} draws {} done**{}.\n",
@@ -347,6 +347,115 @@ pub fn plot(rows: &[Row], path: &Path) -> anyhow::Result<()> {
         }
         Ok(())
     })
+}
+
+/// Milligram doses onto a balance on held-out powders (weighing.md).
+pub struct WeighingStudy;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: crate::lab::study::args::Common,
+    #[command(flatten)]
+    pub page: crate::lab::study::args::Page,
+    /// The weighing scene (default scenes/vial_weighing.ron).
+    #[arg(long, default_value = "scenes/vial_weighing.ron")]
+    pub scene: std::path::PathBuf,
+    /// Held-out draws to dose.
+    #[arg(long, default_value_t = 20)]
+    pub draws: usize,
+    /// The first held-out draw.
+    #[arg(long, default_value_t = 0)]
+    pub first_draw: usize,
+    /// Worker threads per dose (default: the scene's setting; 0 = all cores).
+    #[arg(long, value_parser = crate::util::threads_arg)]
+    pub threads: Option<usize>,
+    /// Run no dose: rewrite the page from the doses already kept.
+    #[arg(long)]
+    pub page_only: bool,
+}
+crate::study_settings!(Args);
+
+impl Args {
+    /// The page's words for the thread count of the doses run now.
+    fn threads(&self, base: &Scene) -> String {
+        match self.threads {
+            Some(1) => "one thread".to_string(),
+            Some(0) => "all cores".to_string(),
+            Some(n) => format!("{n} threads"),
+            None => format!("{} threads (the scene's setting)", base.simulation.threads),
+        }
+    }
+}
+
+impl crate::lab::study::Study for WeighingStudy {
+    const NAME: &'static str = "weighing";
+    const ABOUT: &'static str = "Milligram doses onto a balance on held-out powders (weighing.md)";
+    type Args = Args;
+    type Outcome = Vec<Row>;
+
+    /// The rule's doses on held-out draws, with the page rewritten after every draw.
+    fn run(a: &Args, ctx: crate::lab::study::Ctx) -> anyhow::Result<Vec<Row>> {
+        let base = Scene::load(&a.scene)?;
+        let d = Dispense::default();
+        let opts = SimOptions {
+            threads: a.threads,
+            ..Default::default()
+        };
+        let dir = a
+            .common
+            .out
+            .join(crate::lab::streams::folder("weighing", a.first_draw));
+        crate::util::create_output_dir(&a.page.results, "--results")?;
+        let threads = a.threads(&base);
+        let pb = ctx.bar(a.draws as u64);
+        let rows = run(
+            &base,
+            &d,
+            a.first_draw,
+            a.draws,
+            &opts,
+            &dir,
+            a.page_only,
+            &mut |k, step, mg| {
+                if step.is_multiple_of(10) {
+                    pb.set_message(format!("draw {k}: step {step}, balance {mg:.1} mg"));
+                }
+            },
+            &mut |rows| {
+                pb.set_position(rows.len() as u64);
+                plot(rows, &a.page.results.join("weighing.svg"))?;
+                crate::util::write_atomic(
+                    &a.page.results.join("weighing.md"),
+                    page(rows, &d, a.first_draw, a.draws, &threads).as_bytes(),
+                )?;
+                Ok(())
+            },
+        )?;
+        pb.finish_and_clear();
+        Ok(rows)
+    }
+
+    /// The page was written after every draw; this says what it holds.
+    fn page(
+        a: &Args,
+        rows: Vec<Row>,
+        _: crate::lab::study::Ctx,
+    ) -> anyhow::Result<crate::lab::study::Report> {
+        let s = summary(&rows);
+        Ok(crate::lab::study::Report {
+            text: format!(
+                "{} doses: mean |error| {:.2} mg, {:.0} % within ±2 mg\n",
+                s.n,
+                s.mean_abs_mg,
+                100.0 * s.within,
+            ),
+            wrote: "weighing.md and weighing.svg".into(),
+            dir: a.page.results.clone(),
+            json: serde_json::json!({"doses": s.n, "mean_abs_mg": s.mean_abs_mg, "within_2mg": s.within}),
+            failed: false,
+        })
+    }
 }
 
 #[cfg(test)]

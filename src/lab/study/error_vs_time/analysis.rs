@@ -4,6 +4,7 @@
 //! Markdown tables.
 
 use super::{quantities, Case, ConfigResult, Sweep, COLLAPSE_ASPECT};
+use crate::lab::stats::norm;
 use crate::lab::validate::lube_runout;
 use serde::Serialize;
 
@@ -53,16 +54,6 @@ fn rel(a: f64, b: f64) -> f64 {
     } else {
         (a - b).abs() / b.abs()
     }
-}
-
-/// Euclidean length.
-pub fn norm(v: &[f64]) -> f64 {
-    v.iter().map(|x| x * x).sum::<f64>().sqrt()
-}
-
-/// The cosine of the angle between `a` and `b` (NaN when either is zero).
-pub fn cosine(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>() / (norm(a) * norm(b))
 }
 
 /// Relative distance between two gradients, `‖a − b‖/‖b‖`.

@@ -6,8 +6,11 @@
 //! a journal (one JSON line), so the study resumes after a kill. The classification is pure
 //! ([`classify`]) and unit-tested; the process handling is the small [`run_case`].
 
+mod command;
+
 use crate::scene::fuzz;
 use anyhow::{Context, Result};
+pub use command::ReliabilityStudy;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -16,9 +16,9 @@
 //! Every step keeps its result in `dir` (the races their journals), so a killed run resumes.
 
 use super::demonstration::{cameras, demonstrated, fitted, Setup};
-use super::optimizers::TAPE_BUDGET;
 use crate::lab::optim::problem::Problem;
 use crate::lab::optim::report::curve;
+use crate::lab::optim::study::optimizers::TAPE_BUDGET;
 use crate::lab::optim::{self, sobol_thetas, Method};
 use crate::lab::stats::wilcoxon_less;
 use crate::scene::Scene;

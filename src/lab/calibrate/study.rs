@@ -420,3 +420,93 @@ pub struct Outcome {
 /// The sweep that shows the collapse's loss at grain scale: (true friction angle, from, to,
 /// points), gradient rollouts at every point.
 pub const GRAIN: (f64, f64, f64, usize) = (26.0, 23.0, 25.0, 21);
+
+/// Calibration methods on synthetic observations (calibration.md).
+pub struct CalibrationStudy;
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub common: crate::lab::study::args::Common,
+    #[command(flatten)]
+    pub paired: crate::lab::study::args::Paired,
+    #[command(flatten)]
+    pub page: crate::lab::study::args::Page,
+    #[arg(long, value_parser = crate::util::threads_arg)]
+    pub threads: Option<usize>,
+}
+crate::study_settings!(Args);
+
+impl crate::lab::study::Study for CalibrationStudy {
+    const NAME: &'static str = "calibration";
+    const ABOUT: &'static str = "Calibration methods on synthetic observations (calibration.md)";
+    type Args = Args;
+    type Outcome = Outcome;
+
+    /// Recovery of known parameters from noisy synthetic observations, Adam and BFGS on the
+    /// adjoint against CMA-ES at equal compute.
+    fn run(a: &Args, ctx: crate::lab::study::Ctx) -> anyhow::Result<Outcome> {
+        use crate::sim::announce_work;
+        if a.paired.seeds == 0 || a.paired.budget == 0 {
+            anyhow::bail!("study calibration: --seeds and --budget must be at least 1");
+        }
+        let budget = a.paired.budget as f64;
+        let runs = CASES.len() * 5 * a.paired.seeds * METHODS.len();
+        // The pairs, the joint fit and its curvature, and the grain sweep's gradient rollouts.
+        let total = runs as f64 * budget + 2.0 * budget + 6.0 * 3.4 + GRAIN.3 as f64 * 3.4;
+        for case in &CASES {
+            announce_work(Path::new(case.scene), total / CASES.len() as f64)?;
+        }
+        // The layered bed: its pairs (and each pair's rollout at the truth) and its curvature.
+        let layered = {
+            use layers as l;
+            let pairs = (l::PAIRS_PER_SEED * a.paired.seeds) as f64;
+            let k = l::LAYERS as f64;
+            pairs * l::METHODS.len() as f64 * (l::BUDGET_FACTOR * budget + 1.0) + 1.0 + 2.0 * k * k
+        };
+        announce_work(Path::new(layers::SCENE), layered)?;
+        let pb = ctx.bar((total + layered).ceil() as u64);
+        let pb2 = pb.clone();
+        let done = Mutex::new(0.0f64);
+        let progress = move |c: f64| {
+            let mut d = done.lock().expect("lock");
+            *d += c;
+            pb2.set_position(d.round() as u64);
+        };
+        crate::lab::study::start_workers(a.threads.unwrap_or(0))?;
+        // Each rollout runs on one thread; the pairs run side by side.
+        let outcome = run(
+            &a.common.out.join("calibration"),
+            a.paired.seeds,
+            budget,
+            Some(1),
+            &progress,
+        )?;
+        pb.finish_and_clear();
+        Ok(outcome)
+    }
+
+    fn page(
+        a: &Args,
+        outcome: Outcome,
+        _: crate::lab::study::Ctx,
+    ) -> anyhow::Result<crate::lab::study::Report> {
+        let budget = a.paired.budget as f64;
+        let command = format!(
+            "powderlab study calibration --seeds {} --budget {}",
+            a.paired.seeds, a.paired.budget
+        );
+        crate::util::create_output_dir(&a.page.results, "--results")?;
+        let machine = crate::lab::study::machine();
+        let mut md = report(&outcome, &command, &machine, budget, &a.page.results)?;
+        md.push_str(&layers::report(&outcome.layers, budget, &a.page.results)?);
+        crate::lab::study::write_page(&a.page.results, "calibration.md", &md)?;
+        Ok(crate::lab::study::Report {
+            text: md,
+            wrote: "calibration.md, calibration.svg and calibration_layers.svg".into(),
+            dir: a.page.results.clone(),
+            json: serde_json::json!({ "runs": outcome.runs, "layers": outcome.layers.runs }),
+            failed: false,
+        })
+    }
+}

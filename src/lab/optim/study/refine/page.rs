@@ -20,11 +20,7 @@ pub fn report(
         "# Trajectory refinement: the adjoint against CMA-ES, random search and SAC by dimension\n\n",
     );
     let _ = writeln!(s, "Regenerate: `{command}`  ");
-    let _ = writeln!(
-        s,
-        "Machine: {}.\n",
-        crate::lab::study::optimizers::machine()
-    );
+    let _ = writeln!(s, "Machine: {}.\n", crate::lab::study::machine());
     let start = match screen {
         None => "Θ_init(k)".to_string() + ",",
         Some(sc) => format!(
