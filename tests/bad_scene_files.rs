@@ -379,10 +379,7 @@ fn too_many_threads() {
 #[test]
 fn too_many_threads_from_code() {
     let s = Scene::parse(GOOD, Path::new("scenes/good.ron")).unwrap();
-    let opts = |threads| SimOptions {
-        threads: Some(threads),
-        ..Default::default()
-    };
+    let opts = |threads| SimOptions::threads(Some(threads));
     let msg = Simulation::new(&s, &opts(100_000))
         .map(|_| ())
         .expect_err("refused")

@@ -44,10 +44,7 @@ fn allocations_per_substep(scene: &str, threads: usize) -> (f64, f64) {
             .unwrap();
     let mut sim = powderlab::sim::Simulation::new(
         &sc,
-        &powderlab::sim::SimOptions {
-            threads: Some(threads),
-            ..Default::default()
-        },
+        &powderlab::sim::SimOptions::threads(Some(threads)),
     )
     .unwrap();
     sim.step().unwrap();
@@ -69,10 +66,7 @@ fn backward_bytes(steps: usize) -> (usize, usize) {
     let sc = powderlab::scene::Scene::load(path).unwrap();
     let mut sim = powderlab::sim::Simulation::new(
         &sc,
-        &powderlab::sim::SimOptions {
-            threads: Some(2),
-            ..Default::default()
-        },
+        &powderlab::sim::SimOptions::threads(Some(2)),
     )
     .unwrap();
     let snapshot = powderlab::adjoint::checkpoint::snapshot(&mut sim.world).bytes();

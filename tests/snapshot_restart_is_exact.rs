@@ -23,10 +23,7 @@ fn a_run_restarted_from_its_snapshot_is_the_uninterrupted_run() {
     let path =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/scenes/calibration_tiny.ron");
     let scene = powderlab::scene::Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
-    let opts = SimOptions {
-        threads: Some(2),
-        ..Default::default()
-    };
+    let opts = SimOptions::threads(Some(2));
     let build = Build::new(&scene).unwrap();
     let mut whole = build.simulation(scene.clone(), &opts).unwrap();
     whole.run(12, |_| {}).unwrap();

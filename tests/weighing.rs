@@ -25,10 +25,7 @@ fn coarse(noise_mg: f64) -> Scene {
 }
 
 fn run(scene: &Scene, target_mg: f64, d: &Dispense) -> DoseReport {
-    let opts = SimOptions {
-        threads: Some(2),
-        ..Default::default()
-    };
+    let opts = SimOptions::threads(Some(2));
     dose(scene, target_mg, d, &opts, None, &mut |_, _| {}).unwrap()
 }
 

@@ -62,10 +62,7 @@ impl Simulation {
     #[new]
     #[pyo3(signature = (scene, threads = None))]
     fn new(py: Python<'_>, scene: &Scene, threads: Option<usize>) -> PyResult<Simulation> {
-        let opts = SimOptions {
-            threads: threads_arg(threads)?,
-            ..Default::default()
-        };
+        let opts = SimOptions::threads(threads_arg(threads)?);
         let owned = scene.inner.clone();
         let mut sim = py
             .detach(move || RsSimulation::new(&owned, &opts))

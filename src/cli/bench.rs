@@ -63,10 +63,7 @@ fn backward(
     let sc = powderlab::scene::Scene::load(&scene)?;
     let mut sim = Simulation::new(
         &sc,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(threads),
     )?;
     sim.world.resource_mut::<Grid>().sparse = !dense_grid;
     let steps = steps.unwrap_or(sim.horizon);

@@ -165,10 +165,7 @@ pub fn run(a: Args) -> Result<()> {
         // more substeps; the stability guard decides per rollout).
         let mut sim = powderlab::sim::Simulation::new(
             &scene,
-            &powderlab::sim::SimOptions {
-                threads: a.threads,
-                ..Default::default()
-            },
+            &powderlab::sim::SimOptions::threads(a.threads),
         )?;
         let rollout = sim.work(cal.steps);
         let all = a.budget + curvature_cost;
@@ -362,10 +359,7 @@ fn record(
     use powderlab::sim::{SimOptions, Simulation};
     let mut sim = Simulation::new(
         fitted,
-        &SimOptions {
-            threads: cal.threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(cal.threads),
     )?;
     let mut rec = powderlab::record::Recorder::for_scene(path, &mut sim.world, fitted)?;
     for (k, o) in observed.iter().enumerate() {

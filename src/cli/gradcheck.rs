@@ -58,10 +58,7 @@ pub fn run(a: Args) -> Result<()> {
         None => {
             Simulation::new(
                 &sc,
-                &SimOptions {
-                    threads,
-                    ..Default::default()
-                },
+                &SimOptions::threads(threads),
             )?
             .horizon
         }

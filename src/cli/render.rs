@@ -63,10 +63,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut sim = Simulation::new(
         &scene,
-        &SimOptions {
-            threads: a.threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(a.threads),
     )?;
     if cams.is_empty() {
         cams.push(render::default_camera(&mut sim, a.size.0, a.size.1));

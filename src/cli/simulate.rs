@@ -58,10 +58,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let mut sim = Simulation::from_file(
         &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(threads),
     )?;
     super::describe_stability(&sim);
     let steps = steps.unwrap_or(sim.horizon);

@@ -76,10 +76,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(dir) = &a.out {
         create_output_dir(dir, "--out")?;
     }
-    let opts = SimOptions {
-        threads: a.threads,
-        ..Default::default()
-    };
+    let opts = SimOptions::threads(a.threads);
     let rrd = a.out.as_ref().map(|d| d.join("weigh.rrd"));
     let bar = super::bar(0, a.json);
     bar.set_message("steps");

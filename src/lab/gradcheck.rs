@@ -76,10 +76,7 @@ fn forward_loss(
 ) -> anyhow::Result<f64> {
     let mut sim = Simulation::new(
         scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(threads),
     )?;
     shift_state(&mut sim, dv, dx);
     sim.run(steps, |_| {})?;
@@ -203,10 +200,7 @@ pub fn run_scaled(
     let forward_s = t0.elapsed().as_secs_f64();
     let mut sim = Simulation::new(
         scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(threads),
     )?;
     let t1 = std::time::Instant::now();
     let g = gradient(&mut sim, steps, &loss, Tape::Budget(budget_bytes))?;

@@ -32,6 +32,16 @@ pub struct SimOptions {
     pub shared_pool: bool,
 }
 
+impl SimOptions {
+    /// The defaults with `threads` worker threads (`None`: the scene's setting).
+    pub fn threads(threads: Option<usize>) -> Self {
+        SimOptions {
+            threads,
+            ..Default::default()
+        }
+    }
+}
+
 /// Runs `f` in `pool`, or in the caller's pool when there is none: inline on a worker of the
 /// pool the caller runs on, else on a worker of rayon's global pool (the pool the caller's
 /// parallel loops would use). Either way `f` starts on a worker, so its parallel loops do not

@@ -253,10 +253,7 @@ impl Calibration {
         let values: Vec<f64> = self.params.iter().map(|p| p.value(&scene)).collect();
         let mut sim = Simulation::new(
             &scene,
-            &SimOptions {
-                threads: self.threads,
-                ..Default::default()
-            },
+            &SimOptions::threads(self.threads),
         )
         .with_context(|| format!("the scene at {}", self.describe(&values)))?;
         let (loss, g) = if grad {
@@ -380,10 +377,7 @@ fn positions(
 ) -> anyhow::Result<Vec<Vec<DVec3>>> {
     let mut sim = Simulation::new(
         scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(threads),
     )?;
     sim.run(step, |_| {})?;
     Ok(sim.body_states().into_iter().map(|b| b.x).collect())

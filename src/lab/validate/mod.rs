@@ -149,10 +149,7 @@ pub(crate) fn build(
     let scene = Scene::parse(src, Path::new(&format!("<validate:{name}>")))?;
     let sim = Simulation::new(
         &scene,
-        &SimOptions {
-            threads,
-            ..Default::default()
-        },
+        &SimOptions::threads(threads),
     )?;
     Ok((scene, sim))
 }

@@ -398,10 +398,7 @@ impl crate::lab::study::Study for WeighingStudy {
     fn run(a: &Args, ctx: crate::lab::study::Ctx) -> anyhow::Result<Vec<Row>> {
         let base = Scene::load(&a.scene)?;
         let d = Dispense::default();
-        let opts = SimOptions {
-            threads: a.threads,
-            ..Default::default()
-        };
+        let opts = SimOptions::threads(a.threads);
         let dir = a
             .common
             .out
