@@ -175,17 +175,6 @@ pub fn fnv1a(text: &str) -> String {
     format!("{h:016x}")
 }
 
-/// Parses `--threads`: 0 (all cores) up to [`crate::scene::MAX_THREADS`].
-pub fn threads_arg(s: &str) -> Result<usize, String> {
-    let max = crate::scene::MAX_THREADS;
-    match s.parse::<usize>() {
-        Ok(n) if n <= max => Ok(n),
-        _ => Err(format!(
-            "expected a whole number from 0 (all cores) to {max}, got '{s}'"
-        )),
-    }
-}
-
 /// A progress bar of `len` units, hidden when `quiet`.
 pub fn progress_bar(len: u64, quiet: bool) -> indicatif::ProgressBar {
     if quiet {

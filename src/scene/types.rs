@@ -15,6 +15,17 @@ use std::path::PathBuf;
 /// its one step.
 pub const MAX_THREADS: usize = 1024;
 
+/// Parses `--threads`: 0 (all cores) up to [`MAX_THREADS`].
+pub fn threads_arg(s: &str) -> Result<usize, String> {
+    let max = MAX_THREADS;
+    match s.parse::<usize>() {
+        Ok(n) if n <= max => Ok(n),
+        _ => Err(format!(
+            "expected a whole number from 0 (all cores) to {max}, got '{s}'"
+        )),
+    }
+}
+
 /// What to do when the scene's substep is above the stable one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 pub enum Stability {

@@ -432,7 +432,7 @@ pub struct Args {
     pub paired: crate::lab::study::args::Paired,
     #[command(flatten)]
     pub page: crate::lab::study::args::Page,
-    #[arg(long, value_parser = crate::util::threads_arg)]
+    #[arg(long, value_parser = crate::scene::threads_arg)]
     pub threads: Option<usize>,
 }
 crate::study_settings!(Args);

@@ -47,7 +47,7 @@ pub struct Run {
     /// A seconds-long version of the study (tests and CI).
     #[arg(long)]
     pub quick: bool,
-    #[arg(long, value_parser = crate::util::threads_arg)]
+    #[arg(long, value_parser = crate::scene::threads_arg)]
     pub threads: Option<usize>,
 }
 

@@ -368,7 +368,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     pub first_draw: usize,
     /// Worker threads per dose (default: the scene's setting; 0 = all cores).
-    #[arg(long, value_parser = crate::util::threads_arg)]
+    #[arg(long, value_parser = crate::scene::threads_arg)]
     pub threads: Option<usize>,
     /// Run no dose: rewrite the page from the doses already kept.
     #[arg(long)]

@@ -115,7 +115,7 @@ pub struct OptimizersArgs {
     /// stream); 10 and above have judged nothing yet (a verdict stream).
     #[arg(long, default_value_t = 0)]
     pub first_seed: usize,
-    #[arg(long, value_parser = crate::util::threads_arg)]
+    #[arg(long, value_parser = crate::scene::threads_arg)]
     pub threads: Option<usize>,
 }
 
@@ -294,7 +294,7 @@ pub struct RefineArgs {
     /// than the target (the target's unit), instead of Θ_init(k).
     #[arg(long)]
     pub over: Option<f64>,
-    #[arg(long, value_parser = crate::util::threads_arg)]
+    #[arg(long, value_parser = crate::scene::threads_arg)]
     pub threads: Option<usize>,
 }
 
