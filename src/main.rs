@@ -52,6 +52,10 @@ enum Command {
     /// A skill policy over randomised scenes: `dataset`, `train`, `finetune`, `eval`, `apply`.
     #[cfg(feature = "lab")]
     Policy(cli::policy::Args),
+    /// Measure the angle of repose of a scene's powder by its heap test (a tube of powder
+    /// lifted off a rough floor), over several packings.
+    #[cfg(feature = "lab")]
+    Repose(cli::repose::Args),
     /// Check against exact solutions and published experiments (the quick set without a case).
     #[cfg(feature = "lab")]
     Validate(cli::validate::Args),
@@ -85,6 +89,8 @@ fn main() {
         Command::Plan(a) => cli::plan::run(a),
         #[cfg(feature = "lab")]
         Command::Policy(a) => cli::policy::run(a),
+        #[cfg(feature = "lab")]
+        Command::Repose(a) => cli::repose::run(a),
         #[cfg(feature = "lab")]
         Command::Validate(a) => cli::validate::run(a),
         #[cfg(feature = "lab")]

@@ -42,11 +42,9 @@ fn allocations_per_substep(scene: &str, threads: usize) -> (f64, f64) {
     let sc =
         powderlab::scene::Scene::load(format!("{}/scenes/{scene}", env!("CARGO_MANIFEST_DIR")))
             .unwrap();
-    let mut sim = powderlab::sim::Simulation::new(
-        &sc,
-        &powderlab::sim::SimOptions::threads(Some(threads)),
-    )
-    .unwrap();
+    let mut sim =
+        powderlab::sim::Simulation::new(&sc, &powderlab::sim::SimOptions::threads(Some(threads)))
+            .unwrap();
     sim.step().unwrap();
     let (c0, b0) = (CALLS.load(Ordering::SeqCst), BYTES.load(Ordering::SeqCst));
     for _ in 0..SUBSTEPS {
@@ -64,11 +62,9 @@ fn allocations_per_substep(scene: &str, threads: usize) -> (f64, f64) {
 fn backward_bytes(steps: usize) -> (usize, usize) {
     let path = format!("{}/scenes/sand_box.ron", env!("CARGO_MANIFEST_DIR"));
     let sc = powderlab::scene::Scene::load(path).unwrap();
-    let mut sim = powderlab::sim::Simulation::new(
-        &sc,
-        &powderlab::sim::SimOptions::threads(Some(2)),
-    )
-    .unwrap();
+    let mut sim =
+        powderlab::sim::Simulation::new(&sc, &powderlab::sim::SimOptions::threads(Some(2)))
+            .unwrap();
     let snapshot = powderlab::adjoint::checkpoint::snapshot(&mut sim.world).bytes();
     let loss = powderlab::adjoint::loss::scene_loss(&sc);
     let b0 = BYTES.load(Ordering::SeqCst);

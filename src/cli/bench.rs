@@ -61,10 +61,7 @@ fn backward(
     json_out: bool,
 ) -> Result<()> {
     let sc = powderlab::scene::Scene::load(&scene)?;
-    let mut sim = Simulation::new(
-        &sc,
-        &SimOptions::threads(threads),
-    )?;
+    let mut sim = Simulation::new(&sc, &SimOptions::threads(threads))?;
     sim.world.resource_mut::<Grid>().sparse = !dense_grid;
     let steps = steps.unwrap_or(sim.horizon);
     let n = sim.particle_count();

@@ -357,10 +357,7 @@ fn record(
 ) -> Result<()> {
     use glam::DVec3;
     use powderlab::sim::{SimOptions, Simulation};
-    let mut sim = Simulation::new(
-        fitted,
-        &SimOptions::threads(cal.threads),
-    )?;
+    let mut sim = Simulation::new(fitted, &SimOptions::threads(cal.threads))?;
     let mut rec = powderlab::record::Recorder::for_scene(path, &mut sim.world, fitted)?;
     for (k, o) in observed.iter().enumerate() {
         let pts: Vec<DVec3> = match &o.what {

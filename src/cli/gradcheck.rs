@@ -55,13 +55,7 @@ pub fn run(a: Args) -> Result<()> {
     let sc = powderlab::scene::Scene::load(&scene)?;
     let steps = match steps {
         Some(s) => s,
-        None => {
-            Simulation::new(
-                &sc,
-                &SimOptions::threads(threads),
-            )?
-            .horizon
-        }
+        None => Simulation::new(&sc, &SimOptions::threads(threads))?.horizon,
     };
     if !json_out {
         eprintln!(

@@ -17,6 +17,8 @@ pub mod plan;
 pub mod policy;
 #[cfg(feature = "lab")]
 pub mod render;
+#[cfg(feature = "lab")]
+pub mod repose;
 pub mod simulate;
 #[cfg(feature = "lab")]
 pub mod study;
@@ -25,8 +27,9 @@ pub mod validate;
 #[cfg(feature = "lab")]
 pub mod weigh;
 
+pub use powderlab::scene::threads_arg;
 use powderlab::sim::Simulation;
-pub use powderlab::util::{progress_bar as bar, threads_arg};
+pub use powderlab::util::progress_bar as bar;
 
 /// Prints what the stability guard found and whether it raised the substeps.
 pub fn describe_stability(sim: &Simulation) {

@@ -61,10 +61,7 @@ pub fn run(a: Args) -> Result<()> {
         Some(p) => camera::load(p).map_err(anyhow::Error::msg)?,
         None => Vec::new(),
     };
-    let mut sim = Simulation::new(
-        &scene,
-        &SimOptions::threads(a.threads),
-    )?;
+    let mut sim = Simulation::new(&scene, &SimOptions::threads(a.threads))?;
     if cams.is_empty() {
         cams.push(render::default_camera(&mut sim, a.size.0, a.size.1));
     }

@@ -56,10 +56,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(p) = &save_state {
         check_output_file(p, "--save-state")?;
     }
-    let mut sim = Simulation::from_file(
-        &scene,
-        &SimOptions::threads(threads),
-    )?;
+    let mut sim = Simulation::from_file(&scene, &SimOptions::threads(threads))?;
     super::describe_stability(&sim);
     let steps = steps.unwrap_or(sim.horizon);
     let n = sim.particle_count();

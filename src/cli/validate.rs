@@ -10,10 +10,10 @@ use std::path::PathBuf;
 /// Check against exact solutions and published experiments.
 #[derive(clap::Args)]
 pub struct Args {
-    /// free_fall, bar, self_weight, incline, column_collapse, pile_angle or stability. Without
+    /// free_fall, bar, self_weight, incline, column_collapse, pile_angle, repose or stability. Without
     /// a case the quick set runs (free_fall, bar, self_weight, incline: about 20 s on 2 cores).
     case: Option<String>,
-    /// Every case but stability (about 13 minutes on 2 cores).
+    /// Every case but stability (about 16 minutes on 2 cores).
     #[arg(long, conflicts_with = "case")]
     all: bool,
     /// Grid cells across the collapsing column (default 20, the published check: every
@@ -76,7 +76,7 @@ pub fn run(a: Args) -> Result<()> {
             names.join(", "),
             duration(estimate),
             if a.case.is_none() && !a.all {
-                "; --all adds column_collapse and pile_angle (about 13 minutes)"
+                "; --all adds column_collapse, pile_angle and repose (about 16 minutes)"
             } else {
                 ""
             }

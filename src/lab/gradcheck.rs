@@ -74,10 +74,7 @@ fn forward_loss(
     dx: DVec3,
     loss: &Loss,
 ) -> anyhow::Result<f64> {
-    let mut sim = Simulation::new(
-        scene,
-        &SimOptions::threads(threads),
-    )?;
+    let mut sim = Simulation::new(scene, &SimOptions::threads(threads))?;
     shift_state(&mut sim, dv, dx);
     sim.run(steps, |_| {})?;
     let xs: Vec<Vec<DVec3>> = sim.body_states().into_iter().map(|b| b.x).collect();
@@ -198,10 +195,7 @@ pub fn run_scaled(
     let t0 = std::time::Instant::now();
     let base = forward_loss(scene, steps, threads, DVec3::ZERO, DVec3::ZERO, &loss)?;
     let forward_s = t0.elapsed().as_secs_f64();
-    let mut sim = Simulation::new(
-        scene,
-        &SimOptions::threads(threads),
-    )?;
+    let mut sim = Simulation::new(scene, &SimOptions::threads(threads))?;
     let t1 = std::time::Instant::now();
     let g = gradient(&mut sim, steps, &loss, Tape::Budget(budget_bytes))?;
     let forward_backward_s = t1.elapsed().as_secs_f64();

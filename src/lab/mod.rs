@@ -8,6 +8,7 @@
 //! - [`plan`]: sequences of scoops and strokes by A* (seed B §2.2);
 //! - [`policy`]: a skill policy over randomised scenes (seed B's Sim2Real step);
 //! - [`render`]: pictures of a run;
+//! - [`repose`]: the angle of repose by a lifted-cylinder heap test;
 //! - [`validate`]: checks against exact solutions and published experiments;
 //! - [`weigh`]: milligram doses onto a balance, closed on its reading;
 //! - [`gradcheck`]: the adjoint's gradients against central differences;
@@ -30,6 +31,7 @@ pub mod optim;
 pub mod plan;
 pub mod policy;
 pub mod render;
+pub mod repose;
 pub mod stats;
 pub mod streams;
 pub mod study;

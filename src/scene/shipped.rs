@@ -58,6 +58,10 @@ pub const SHIPPED: &[(&str, &str)] = &[
         "precise_dosing",
         include_str!("../../scenes/precise_dosing.ron"),
     ),
+    (
+        "repose_cylinder",
+        include_str!("../../scenes/repose_cylinder.ron"),
+    ),
     ("sand_box", include_str!("../../scenes/sand_box.ron")),
     ("stiff_block", include_str!("../../scenes/stiff_block.ron")),
     ("vial_scale", include_str!("../../scenes/vial_scale.ron")),

@@ -20,11 +20,7 @@ pub fn parse(src: &str) -> Result<Scene, powderlab::error::SceneError> {
 }
 
 pub fn build(scene: &Scene, threads: usize) -> Simulation {
-    Simulation::new(
-        scene,
-        &SimOptions::threads(Some(threads)),
-    )
-    .unwrap_or_else(|e| panic!("{e}"))
+    Simulation::new(scene, &SimOptions::threads(Some(threads))).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// Asserts every particle field is finite.

@@ -251,11 +251,8 @@ impl Calibration {
         let t0 = Instant::now();
         let scene = self.scene_at(u);
         let values: Vec<f64> = self.params.iter().map(|p| p.value(&scene)).collect();
-        let mut sim = Simulation::new(
-            &scene,
-            &SimOptions::threads(self.threads),
-        )
-        .with_context(|| format!("the scene at {}", self.describe(&values)))?;
+        let mut sim = Simulation::new(&scene, &SimOptions::threads(self.threads))
+            .with_context(|| format!("the scene at {}", self.describe(&values)))?;
         let (loss, g) = if grad {
             let zero = Loss::Linear(
                 sim.body_states()
@@ -375,10 +372,7 @@ fn positions(
     step: usize,
     threads: Option<usize>,
 ) -> anyhow::Result<Vec<Vec<DVec3>>> {
-    let mut sim = Simulation::new(
-        scene,
-        &SimOptions::threads(threads),
-    )?;
+    let mut sim = Simulation::new(scene, &SimOptions::threads(threads))?;
     sim.run(step, |_| {})?;
     Ok(sim.body_states().into_iter().map(|b| b.x).collect())
 }

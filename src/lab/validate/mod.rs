@@ -11,6 +11,8 @@
 //! - `incline`: a block on an incline below and above its friction angle, [`incline`];
 //! - `pile_angle`: the flank angle of a pile at rest against the plane-strain friction angle,
 //!   [`pile`];
+//! - `repose`: the angle of repose of a lifted-cylinder heap against cohesion at two friction
+//!   angles, [`repose`];
 //! - `stability`: stiff and extreme cases, each stable or refused, never NaN, [`stability`].
 
 pub mod bar;
@@ -18,6 +20,7 @@ pub mod collapse;
 pub mod column;
 pub mod incline;
 pub mod pile;
+pub mod repose;
 pub mod stability;
 pub mod suite;
 
@@ -147,10 +150,7 @@ pub(crate) fn build(
     threads: Option<usize>,
 ) -> anyhow::Result<(Scene, Simulation)> {
     let scene = Scene::parse(src, Path::new(&format!("<validate:{name}>")))?;
-    let sim = Simulation::new(
-        &scene,
-        &SimOptions::threads(threads),
-    )?;
+    let sim = Simulation::new(&scene, &SimOptions::threads(threads))?;
     Ok((scene, sim))
 }
 

@@ -1,10 +1,11 @@
 //! Which cases `powderlab validate` runs, at which resolutions, and about how long each takes.
 //!
 //! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
-//! `--all` adds the column collapse and the pile angle, about 13 minutes. The stability suite
+//! `--all` adds the column collapse, the pile angle and the angle of repose against cohesion,
+//! about 16 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
-use super::{bar, column, incline, pile, Check};
+use super::{bar, column, incline, pile, repose, Check};
 use super::{
     collapse_checks, free_fall, halving_check, run_collapse, scale_invariance, small_a_band,
     Collapse, COLLAPSE_CELLS, LARGE_A, LARGE_A_SLOPE, LARGE_A_SLOPE_TOL,
@@ -20,6 +21,7 @@ pub enum Case {
     Incline,
     ColumnCollapse,
     PileAngle,
+    Repose,
 }
 
 /// What a long run reports while it goes: `start` names the next simulation, `advance` gives
@@ -39,13 +41,14 @@ impl Progress for Silent {
 
 impl Case {
     /// Every case but the stability suite, in the order they run.
-    pub const ALL: [Case; 6] = [
+    pub const ALL: [Case; 7] = [
         Case::FreeFall,
         Case::Bar,
         Case::SelfWeight,
         Case::Incline,
         Case::ColumnCollapse,
         Case::PileAngle,
+        Case::Repose,
     ];
     /// The cases `powderlab validate` runs when none is named.
     pub const QUICK: [Case; 4] = [Case::FreeFall, Case::Bar, Case::SelfWeight, Case::Incline];
@@ -58,6 +61,7 @@ impl Case {
             Case::Incline => "incline",
             Case::ColumnCollapse => "column_collapse",
             Case::PileAngle => "pile_angle",
+            Case::Repose => "repose",
         }
     }
 
@@ -77,6 +81,7 @@ impl Case {
             Case::Incline => (7.2, None),
             Case::ColumnCollapse => (740.0, Some(COLLAPSE_CELLS)),
             Case::PileAngle => (29.0, Some(pile::PILE_CELLS)),
+            Case::Repose => (150.0, None),
         };
         match (cells, default_cells) {
             (Some(c), Some(d)) => base * (c as f64 / d as f64).powi(3),
@@ -164,6 +169,12 @@ pub fn run(
                 rs.push(run_pile(&p, threads, |f| progress.advance(f))?);
             }
             checks.extend(pile::pile_checks(&rs));
+        }
+        Case::Repose => {
+            let scene = crate::scene::Scene::shipped("repose_cylinder")?;
+            let opts = crate::sim::SimOptions::threads(threads);
+            let rows = repose::run(&scene, &opts, &mut |l| progress.start(l))?;
+            checks.extend(repose::checks(&rows));
         }
     }
     Ok(checks)
