@@ -132,3 +132,28 @@ fn the_gradient_in_every_material_parameter_agrees_with_central_differences() {
         common::check_fd(with, h, g.material_gradient(0, name).unwrap(), name);
     }
 }
+
+/// Rankine's vertical cut (`validate rankine`'s case) on a coarse slab: a column of height H
+/// slides off its foot at half the cohesion Rankine's plane-strain height asks for at H, and
+/// stands at twice it. A material that ignored cohesion would fail both.
+#[test]
+fn a_cut_fails_below_rankines_cohesion_and_stands_above_it() {
+    use powderlab::lab::validate::rankine::{column, rankine_cohesion, STANDS_CELLS};
+    use powderlab::lab::validate::run_collapse;
+    let (phi, cells) = (20.0, 10);
+    let h = column(phi, 0.0, cells).length;
+    let c = rankine_cohesion(h, phi);
+    let moved = |k: f64| {
+        let col = column(phi, k * c, cells);
+        run_collapse(&col, Some(2), |_| {}).unwrap().runout_ratio * cells as f64
+    };
+    let (weak, strong) = (moved(0.5), moved(2.0));
+    assert!(
+        weak > STANDS_CELLS,
+        "at half Rankine's cohesion the foot moved {weak} cells"
+    );
+    assert!(
+        strong < STANDS_CELLS,
+        "at twice it the foot moved {strong} cells"
+    );
+}

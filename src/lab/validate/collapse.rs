@@ -52,6 +52,9 @@ pub struct Collapse {
     pub stiffness_ratio: f64,
     /// Coulomb friction of the floor.
     pub floor_friction: f64,
+    /// Cohesion (Pa): above 0 the column is `CohesiveDruckerPrager` (the Rankine case), at 0
+    /// the cohesionless `DruckerPrager` of every other case.
+    pub cohesion: f64,
     /// Particles per cell (a cube number).
     pub particles_per_cell: usize,
     /// CFL number of the stability guard: the substeps follow from it.
@@ -70,6 +73,7 @@ impl Collapse {
             friction_deg: 22.0,
             stiffness_ratio: 100.0,
             floor_friction: 0.577,
+            cohesion: 0.0,
             particles_per_cell: 8,
             cfl: 0.5,
             room: 2.0,
@@ -170,19 +174,30 @@ pub fn collapse_scene(c: &Collapse) -> String {
     let y0 = wall as f64 * dx;
     let z0 = (wall - 1) as f64 * dx;
     let e = c.stiffness_ratio * 1500.0 * 9.81 * h0;
+    let material = if c.cohesion > 0.0 {
+        format!(
+            "CohesiveDruckerPrager((density: 1500.0, youngs_modulus: {e}, poisson_ratio: 0.3,
+                                         friction_deg: {}, cohesion: {}))",
+            c.friction_deg, c.cohesion
+        )
+    } else {
+        format!(
+            "DruckerPrager((density: 1500.0, youngs_modulus: {e}, poisson_ratio: 0.3,
+                                         friction_deg: {}))",
+            c.friction_deg
+        )
+    };
     format!(
         r#"Scene(
     simulation: (cells: ({nx}, {ny}, {nz}), dx: {dx}, dt: 0.005, substeps: 1, stability: Auto,
                  cfl: {cfl}, walls: (cells: {wall}, contact: Separate, friction: 0.0)),
-    materials: {{ "sand": DruckerPrager((density: 1500.0, youngs_modulus: {e}, poisson_ratio: 0.3,
-                                         friction_deg: {phi})) }},
+    materials: {{ "sand": {material} }},
     bodies: [(name: "column", material: "sand",
               fill: Column(base: ({x0}, {y0}, {z0}), length: {l0}, aspect: {a}, depth: {depth}),
               particles_per_cell: {ppc})],
     colliders: [(name: "floor", kind: Container, shape: Plane(normal: (0.0, 1.0, 0.0)),
                  position: (0.0, {y0}, 0.0), friction: {mu}, particle_contact: false)],
 )"#,
-        phi = c.friction_deg,
         l0 = c.length,
         a = c.aspect,
         depth = COLLAPSE_SLAB_CELLS as f64 * dx,

@@ -11,6 +11,7 @@
 //! - `incline`: a block on an incline below and above its friction angle, [`incline`];
 //! - `pile_angle`: the flank angle of a pile at rest against the plane-strain friction angle,
 //!   [`pile`];
+//! - `rankine`: the critical height of a cohesive vertical cut against Rankine's, [`rankine`];
 //! - `repose`: the angle of repose of a lifted-cylinder heap against cohesion at two friction
 //!   angles, [`repose`];
 //! - `stability`: stiff and extreme cases, each stable or refused, never NaN, [`stability`].
@@ -20,6 +21,7 @@ pub mod collapse;
 pub mod column;
 pub mod incline;
 pub mod pile;
+pub mod rankine;
 pub mod repose;
 pub mod stability;
 pub mod suite;

@@ -1,11 +1,11 @@
 //! Which cases `powderlab validate` runs, at which resolutions, and about how long each takes.
 //!
 //! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
-//! `--all` adds the column collapse, the pile angle and the angle of repose against cohesion,
-//! about 16 minutes. The stability suite
+//! `--all` adds the column collapse, the pile angle, Rankine's vertical cut and the angle of
+//! repose against cohesion, about 18 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
-use super::{bar, column, incline, pile, repose, Check};
+use super::{bar, column, incline, pile, rankine, repose, Check};
 use super::{
     collapse_checks, free_fall, halving_check, run_collapse, scale_invariance, small_a_band,
     Collapse, COLLAPSE_CELLS, LARGE_A, LARGE_A_SLOPE, LARGE_A_SLOPE_TOL,
@@ -21,6 +21,7 @@ pub enum Case {
     Incline,
     ColumnCollapse,
     PileAngle,
+    Rankine,
     Repose,
 }
 
@@ -41,13 +42,14 @@ impl Progress for Silent {
 
 impl Case {
     /// Every case but the stability suite, in the order they run.
-    pub const ALL: [Case; 7] = [
+    pub const ALL: [Case; 8] = [
         Case::FreeFall,
         Case::Bar,
         Case::SelfWeight,
         Case::Incline,
         Case::ColumnCollapse,
         Case::PileAngle,
+        Case::Rankine,
         Case::Repose,
     ];
     /// The cases `powderlab validate` runs when none is named.
@@ -61,6 +63,7 @@ impl Case {
             Case::Incline => "incline",
             Case::ColumnCollapse => "column_collapse",
             Case::PileAngle => "pile_angle",
+            Case::Rankine => "rankine",
             Case::Repose => "repose",
         }
     }
@@ -81,6 +84,7 @@ impl Case {
             Case::Incline => (7.2, None),
             Case::ColumnCollapse => (740.0, Some(COLLAPSE_CELLS)),
             Case::PileAngle => (29.0, Some(pile::PILE_CELLS)),
+            Case::Rankine => (120.0, Some(rankine::RANKINE_CELLS)),
             Case::Repose => (150.0, None),
         };
         match (cells, default_cells) {
@@ -169,6 +173,22 @@ pub fn run(
                 rs.push(run_pile(&p, threads, |f| progress.advance(f))?);
             }
             checks.extend(pile::pile_checks(&rs));
+        }
+        Case::Rankine => {
+            let cells = cells.unwrap_or(rankine::RANKINE_CELLS);
+            if cells < 6 {
+                bail!(
+                    "--cells {cells} is too coarse for a cut: use at least 6 ({} for the published check)",
+                    rankine::RANKINE_CELLS
+                );
+            }
+            let mut rs = Vec::new();
+            for phi in rankine::FRICTION_DEG {
+                rs.push(rankine::run_rankine(phi, cells, threads, &mut |l| {
+                    progress.start(l)
+                })?);
+            }
+            checks.extend(rankine::rankine_checks(&rs));
         }
         Case::Repose => {
             let scene = crate::scene::Scene::shipped("repose_cylinder")?;
