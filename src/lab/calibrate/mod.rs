@@ -24,7 +24,7 @@ pub mod journal;
 pub mod observation;
 pub mod params;
 pub mod plot;
-pub mod study;
+pub(crate) mod study;
 pub mod trust;
 
 pub use curvature::{identifiability, Identifiability, CURVATURE_STEP, PINNED_SHARE};

@@ -32,7 +32,7 @@ use crate::lab::calibrate::{
 use crate::scene::Scene;
 use crate::util::SplitMix64;
 use rayon::prelude::*;
-pub use report::{grain_summary, report, settled, Grain};
+pub use report::report;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;

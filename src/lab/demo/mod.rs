@@ -13,5 +13,5 @@ pub mod overlay;
 pub mod shape;
 pub mod skill_fit;
 pub mod spoon_map;
-pub mod study;
+pub(crate) mod study;
 pub mod track;

@@ -11,7 +11,7 @@ pub mod journal;
 pub mod output;
 pub mod push;
 pub mod search;
-pub mod study;
+pub(crate) mod study;
 
 use serde::{Deserialize, Serialize};
 

@@ -18,5 +18,5 @@ pub mod knob;
 pub mod net;
 pub mod pour;
 pub mod reinforce;
-pub mod study;
+pub(crate) mod study;
 pub mod tune;

@@ -13,7 +13,7 @@
 //! `--out`, so a study stopped part-way goes on where it stopped, and a finished one rewrites
 //! its page from what it kept without running anything again.
 
-pub mod args;
+pub(crate) mod args;
 pub mod error_vs_time;
 pub mod growth;
 pub mod reliability;

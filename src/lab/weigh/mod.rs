@@ -25,7 +25,7 @@
 //! particles. The delivered mass it is judged by is the boat's content once everything has
 //! settled ([`crate::systems::balance::load_g`], the truth behind the reading).
 
-pub mod study;
+pub(crate) mod study;
 
 use crate::math::pose::{quat_to_rotation_vector, Pose};
 use crate::record::Recorder;

@@ -3,9 +3,9 @@
 //! refinement (`refinement.md`).
 
 pub mod directions;
-pub mod landscape;
-pub mod optimizers;
-pub mod refine;
+pub(crate) mod landscape;
+pub(crate) mod optimizers;
+pub(crate) mod refine;
 
 use crate::lab::optim::problem::Problem;
 use crate::lab::study::args::{Common, Page, Paired, Run};

@@ -23,7 +23,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 
 mod report;
-pub use report::{page, table};
+pub use report::page;
 
 /// The methods that use no gradient: the baselines a gradient-informed method must beat.
 pub const BASELINES: [Method; 3] = [Method::Random, Method::Cmaes, Method::Sac];

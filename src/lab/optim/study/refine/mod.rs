@@ -26,7 +26,7 @@ pub use page::report;
 
 use crate::lab::optim::cma::reflect;
 use crate::lab::optim::hybrid::{HybridConfig, TrustRegion};
-pub use crate::lab::optim::line::{self, Illinois, LINE_STEPS};
+pub use crate::lab::optim::line::{self, LINE_STEPS};
 use crate::lab::optim::problem::Problem;
 pub use crate::lab::optim::report::gradient_rollouts;
 use crate::lab::optim::report::BACKWARD_COST;
