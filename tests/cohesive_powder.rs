@@ -138,7 +138,7 @@ fn the_gradient_in_every_material_parameter_agrees_with_central_differences() {
 /// stands at twice it. A material that ignored cohesion would fail both.
 #[test]
 fn a_cut_fails_below_rankines_cohesion_and_stands_above_it() {
-    use powderlab::lab::validate::rankine::{column, rankine_cohesion, STANDS_CELLS};
+    use powderlab::lab::validate::rankine::{column, rankine_cohesion, stands};
     use powderlab::lab::validate::run_collapse;
     let (phi, cells) = (20.0, 10);
     let h = column(phi, 0.0, cells).length;
@@ -149,11 +149,11 @@ fn a_cut_fails_below_rankines_cohesion_and_stands_above_it() {
     };
     let (weak, strong) = (moved(0.5), moved(2.0));
     assert!(
-        weak > STANDS_CELLS,
+        !stands(weak, cells),
         "at half Rankine's cohesion the foot moved {weak} cells"
     );
     assert!(
-        strong < STANDS_CELLS,
+        stands(strong, cells),
         "at twice it the foot moved {strong} cells"
     );
 }

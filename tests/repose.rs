@@ -111,3 +111,46 @@ fn bad_input_is_refused_in_one_line() {
         );
     }
 }
+
+/// How close `repose --fit` must bring the cohesion back from a heap of the same packing (Pa):
+/// the fit stops within 0.1° of the target, and near 3 Pa the angle moves by about 10° per Pa on
+/// this grid, so the root is known to about 0.01 Pa; 0.1 Pa leaves room for the secant's
+/// curvature over its last bracket.
+const SAME_PACKING_RECOVERY_PA: f64 = 0.1;
+
+#[test]
+fn a_fit_to_a_heaps_own_angle_gives_its_cohesion_back() {
+    let dir = std::env::temp_dir().join(format!("powderlab-repose-fit-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = write(&coarse(), &dir);
+    let run = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+            .args(["repose", "--json", "--seeds", "1", "--threads", "2"])
+            .arg(&path)
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()
+    };
+    let truth = 3.0;
+    let angle = run(&["--set", "cohesion=3"])["angle_deg"].as_f64().unwrap();
+    let target = format!("{angle}");
+    let fit = run(&[
+        "--fit",
+        "cohesion",
+        "--angle-deg",
+        &target,
+        "--bounds",
+        "cohesion=0:10",
+        "--evals",
+        "10",
+    ]);
+    let (c, sd) = (fit["value"].as_f64().unwrap(), fit["sd"].as_f64().unwrap());
+    assert!(
+        (c - truth).abs() < SAME_PACKING_RECOVERY_PA,
+        "recovered {c} Pa for {truth} Pa: {fit}"
+    );
+    assert!(sd > 0.0 && sd.is_finite(), "{fit}");
+    std::fs::remove_dir_all(&dir).ok();
+}

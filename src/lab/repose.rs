@@ -26,6 +26,9 @@ pub const VIEWS: usize = 4;
 /// The heap is at rest when no grain moves faster than this at the end (m/s): 1 mm/s, a grain
 /// moving a tenth of a millimetre while a camera takes its picture.
 pub const REST_SPEED: f64 = 1e-3;
+/// A fit stops once the simulated angle is this close to the target (degrees): below the
+/// packings' spread of the test itself (0.1–0.2°, `docs/results/validation.md`).
+pub const FIT_TOL_DEG: f64 = 0.1;
 
 /// One heap: the test run once on one packing.
 #[derive(Clone, Debug, Serialize)]
@@ -176,6 +179,137 @@ pub fn repose(
             .iter()
             .all(|b| matches!(b.lattice, Lattice::Regular)),
         heaps,
+    })
+}
+
+/// An observed angle of repose and its measurement's standard deviation (degrees).
+#[derive(Clone, Copy, Debug)]
+pub struct Observed {
+    pub angle_deg: f64,
+    pub sd_deg: f64,
+}
+
+/// A parameter fitted to an observed angle of repose ([`fit`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct Fitted {
+    /// The parameter, as reports name it (`powder.cohesion`).
+    pub parameter: String,
+    pub value: f64,
+    /// Its posterior standard deviation (Laplace, see [`fit`]).
+    pub sd: f64,
+    /// The observation: the angle and its measurement's standard deviation (degrees).
+    pub target_deg: f64,
+    pub target_sd_deg: f64,
+    /// The spread of the simulated angle over the packings of one evaluation (degrees), when
+    /// there are two or more.
+    pub packing_sd_deg: Option<f64>,
+    /// The simulated angle's slope in the parameter at the root (degrees per unit).
+    pub slope_deg: f64,
+    /// Every evaluation: the parameter's value and the simulated angle (mean over packings).
+    pub evaluations: Vec<(f64, f64)>,
+}
+
+/// Fits parameter `p` of `scene` (searched within its bounds `p.lo..p.hi`) so that the heap
+/// test's angle, the mean over the packings `seeds`, is the observed angle. The angle rises with the
+/// friction angle and with the cohesion, so a root of `angle − target` is bracketed by the
+/// bounds and closed by the Illinois regula falsi ([`crate::lab::optim::line::Illinois`]) in at
+/// most `max_evals` evaluations (the bounds' two included), stopping within
+/// [`FIT_TOL_DEG`] of the target.
+///
+/// The value is the secant's root of the tightest bracket, and its spread is the Laplace
+/// approximation of the posterior with a flat prior and a Gaussian likelihood on the angle,
+/// linearised at the root: `sd = σ / |dA/dp|`, where `σ² = target_sd² + packing_sd²/n` (the
+/// observation's error and the simulated angle's over its `n` packings).
+pub fn fit(
+    scene: &Scene,
+    p: &crate::lab::calibrate::params::FitParam,
+    observed: Observed,
+    seeds: &[u64],
+    opts: &SimOptions,
+    max_evals: usize,
+    progress: &mut dyn FnMut(f64, f64),
+) -> Result<Fitted> {
+    use crate::lab::optim::line::Illinois;
+    let (target_deg, target_sd_deg) = (observed.angle_deg, observed.sd_deg);
+    if !(target_deg > 0.0 && target_deg < 90.0) {
+        bail!("--angle-deg {target_deg}: expected an angle of repose between 0 and 90 degrees");
+    }
+    if !(target_sd_deg.is_finite() && target_sd_deg >= 0.0) {
+        bail!("--angle-sd {target_sd_deg}: expected a standard deviation of at least 0");
+    }
+    if max_evals < 3 {
+        bail!("--evals {max_evals}: the bracket's two ends and at least one more");
+    }
+    let mut evaluations = Vec::new();
+    let mut packing_sd = Vec::new();
+    let mut angle = |v: f64, evaluations: &mut Vec<(f64, f64)>| -> Result<f64> {
+        let mut s = scene.clone();
+        p.apply(&mut s, v);
+        s.validate()
+            .map_err(|e| anyhow::anyhow!("{} = {v}: the scene is refused: {e}", p.label))?;
+        let r = repose(&s, seeds, opts, &mut |_| {})?;
+        packing_sd.extend(r.sd_deg);
+        evaluations.push((v, r.angle_deg));
+        progress(v, r.angle_deg);
+        Ok(r.angle_deg)
+    };
+    let (lo, hi) = (p.lo, p.hi);
+    let (a_lo, a_hi) = (angle(lo, &mut evaluations)?, angle(hi, &mut evaluations)?);
+    if !(a_lo <= target_deg && target_deg <= a_hi) {
+        bail!(
+            "--angle-deg {target_deg}: outside the {a_lo:.1}°–{a_hi:.1}° that {} from {lo} to {hi} \
+             gives; widen --bounds {}=LO:HI",
+            p.label,
+            p.label.rsplit('.').next().unwrap_or_default()
+        );
+    }
+    let mut ends = Illinois {
+        a: lo,
+        fa: a_lo - target_deg,
+        b: hi,
+        fb: a_hi - target_deg,
+    };
+    while evaluations.len() < max_evals && ends.fb.abs() > FIT_TOL_DEG {
+        let x = ends.next();
+        let fx = angle(x, &mut evaluations)? - target_deg;
+        ends.update(x, fx);
+    }
+    // The tightest bracket among the evaluations: the nearest below and above the target.
+    let below = evaluations
+        .iter()
+        .filter(|e| e.1 <= target_deg)
+        .max_by(|x, y| x.0.total_cmp(&y.0))
+        .copied()
+        .expect("the lower bound is below");
+    let above = evaluations
+        .iter()
+        .filter(|e| e.1 > target_deg)
+        .min_by(|x, y| x.0.total_cmp(&y.0))
+        .copied()
+        .unwrap_or(below);
+    let slope = if above.0 > below.0 {
+        (above.1 - below.1) / (above.0 - below.0)
+    } else {
+        f64::NAN
+    };
+    let value = if slope.is_finite() && slope > 0.0 {
+        below.0 + (target_deg - below.1) / slope
+    } else {
+        below.0
+    };
+    let packing_sd_deg = (!packing_sd.is_empty())
+        .then(|| (packing_sd.iter().map(|s| s * s).sum::<f64>() / packing_sd.len() as f64).sqrt());
+    let sigma =
+        (target_sd_deg.powi(2) + packing_sd_deg.map_or(0.0, |s| s * s / seeds.len() as f64)).sqrt();
+    Ok(Fitted {
+        parameter: p.label.clone(),
+        value,
+        sd: sigma / slope,
+        target_deg,
+        target_sd_deg,
+        packing_sd_deg,
+        slope_deg: slope,
+        evaluations,
     })
 }
 

@@ -108,6 +108,9 @@ fn default_bounds(param: &str, v: f64) -> (f64, f64, bool) {
         "friction_deg" => (10.0, 60.0, false),
         "poisson_ratio" => (0.05, 0.45, false),
         "friction" => (0.0, 1.5, false),
+        // A powder's cohesion at the scale of a vial: from none to a heap that stands upright
+        // (`validate repose`: 10 Pa stands a 12 mm heap at 60°).
+        "cohesion" => (0.0, 20.0, false),
         // Stiffness, and any other positive parameter: a decade and a half either way.
         _ if v > 0.0 => (v / 30.0, v * 30.0, true),
         _ => (v - 1.0, v + 1.0, false),

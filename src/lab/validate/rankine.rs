@@ -3,8 +3,8 @@
 //! A cut of height `H` in a Mohr–Coulomb soil of cohesion `c` and friction angle `φ` stands when
 //! `H < H_c = 4c·tan(45° + φ/2)/(ρg)`, and fails above. The case stands a column of the planar
 //! collapse slab (aspect 1, against the left wall, so in plane strain) on a rough floor and finds
-//! by bisection the cohesion at which it stops standing: below it the column's foot moves less
-//! than [`STANDS_CELLS`], above it a wedge slides off. Since the only length of the problem is
+//! by bisection the cohesion at which it stops standing: above it the column's foot moves by
+//! at most [`STANDS_FRACTION`] of its height, below it a wedge slides off. Since the only length of the problem is
 //! `c/(ρg)` (the stiffness scales with the column's height), the critical cohesion at height `H`
 //! gives the critical height at any cohesion: `H_c(c) = H·c/c_crit`.
 //!
@@ -21,9 +21,11 @@ use super::{run_collapse, Check, Collapse};
 pub const FRICTION_DEG: [f64; 3] = [20.0, 30.0, 35.0];
 /// The criterion: the measured critical height within 15 % of Rankine's (the issue's).
 pub const RANKINE_TOL: f64 = 0.15;
-/// A column stands when its foot (the deposit front) moved less than this many cells: an
-/// elastic bulge of a standing face is a fraction of a cell, a slid wedge many cells.
-pub const STANDS_CELLS: f64 = 2.0;
+/// A column stands when its foot (the deposit front, counted in whole cells) moved by at most
+/// this fraction of the column's height: 2.5 mm on the 50 mm column, one cell at 20 cells across
+/// and two at 40, so that the criterion is the same distance at every resolution. A standing
+/// face bulges by a fraction of a cell; a failing one sheds a wedge that runs out several.
+pub const STANDS_FRACTION: f64 = 0.05;
 /// Cells across the column (its width and its height, aspect 1).
 pub const RANKINE_CELLS: usize = 20;
 /// Bisection steps on the cohesion: the bracket [¼, 2]× Rankine's falls to 1/64 of its width.
@@ -111,6 +113,13 @@ fn foot_moved(col: &Collapse, threads: Option<usize>) -> anyhow::Result<f64> {
     Ok(r.runout_ratio * col.cells_across as f64)
 }
 
+/// Whether a foot that moved `cells` (a whole number, up to round-off) of a column `cells_across`
+/// wide and high stands: at most [`STANDS_FRACTION`] of the height, with a quarter cell for the
+/// round-off of the count.
+pub fn stands(moved_cells: f64, cells_across: usize) -> bool {
+    moved_cells <= STANDS_FRACTION * cells_across as f64 + 0.25
+}
+
 /// Finds the critical cohesion at Klár's `φ` by bisection; `progress(label)` before each run.
 pub fn run_rankine(
     friction_deg: f64,
@@ -122,13 +131,13 @@ pub fn run_rankine(
     let rankine_c = rankine_cohesion(h, friction_deg);
     let (mut lo, mut hi) = (0.25 * rankine_c, 2.0 * rankine_c);
     let mut runs = Vec::new();
-    let mut stands = |c: f64, runs: &mut Vec<(f64, f64)>| -> anyhow::Result<bool> {
+    let mut try_c = |c: f64, runs: &mut Vec<(f64, f64)>| -> anyhow::Result<bool> {
         progress(format!("cut at φ = {friction_deg}°, c = {c:.1} Pa"));
         let moved = foot_moved(&column(friction_deg, c, cells), threads)?;
         runs.push((c, moved));
-        Ok(moved < STANDS_CELLS)
+        Ok(stands(moved, cells))
     };
-    if stands(lo, &mut runs)? || !stands(hi, &mut runs)? {
+    if try_c(lo, &mut runs)? || !try_c(hi, &mut runs)? {
         anyhow::bail!(
             "rankine at φ = {friction_deg}°: the bracket [{lo:.1}, {hi:.1}] Pa does not hold the \
              critical cohesion (runs: {runs:?})"
@@ -136,7 +145,7 @@ pub fn run_rankine(
     }
     for _ in 0..BISECTIONS {
         let mid = 0.5 * (lo + hi);
-        if stands(mid, &mut runs)? {
+        if try_c(mid, &mut runs)? {
             hi = mid;
         } else {
             lo = mid;
