@@ -418,13 +418,7 @@ pub struct ObserveArgs {
 }
 
 pub fn observe(a: ObserveArgs) -> Result<()> {
-    let mut scene = Scene::load(&a.scene)?;
-    for (p, v) in super::assignments(&scene, "--set", &a.set)? {
-        p.apply(&mut scene, v);
-    }
-    if let Err(e) = scene.validate() {
-        bail!("--set: the scene with these values is refused: {e}");
-    }
+    let scene = super::load_with_sets(&a.scene, &a.set)?;
     let ext = a.out.extension().and_then(|e| e.to_str()).unwrap_or("");
     let heights = match ext {
         "csv" | "png" => true,

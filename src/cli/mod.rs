@@ -70,6 +70,22 @@ pub fn report_or_json(
     Ok(!json_out)
 }
 
+/// The scene at `path` with each `--set NAME=VALUE` of `sets` applied, refused in one line if
+/// the values make it invalid.
+pub fn load_with_sets(
+    path: &std::path::Path,
+    sets: &[String],
+) -> anyhow::Result<powderlab::scene::Scene> {
+    let mut scene = powderlab::scene::Scene::load(path)?;
+    for (p, v) in assignments(&scene, "--set", sets)? {
+        p.apply(&mut scene, v);
+    }
+    if let Err(e) = scene.validate() {
+        anyhow::bail!("--set: the scene with these values is refused: {e}");
+    }
+    Ok(scene)
+}
+
 /// `NAME=VALUE` pairs against the fitted (or settable) parameters of `scene` (`--set`).
 #[cfg(feature = "lab")]
 pub fn assignments(

@@ -49,13 +49,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut scene = Scene::load(&a.scene)?;
-    for (p, v) in super::assignments(&scene, "--set", &a.set)? {
-        p.apply(&mut scene, v);
-    }
-    if let Err(e) = scene.validate() {
-        bail!("--set: the scene with these values is refused: {e}");
-    }
+    let scene = super::load_with_sets(&a.scene, &a.set)?;
     if !(1..=1000).contains(&a.seeds) {
         bail!("--seeds {}: expected 1 to 1000 packings", a.seeds);
     }

@@ -3,7 +3,6 @@
 use anyhow::{bail, Result};
 use clap::ValueEnum;
 use powderlab::lab::weigh::{self, Dispense};
-use powderlab::scene::Scene;
 use powderlab::sim::SimOptions;
 use powderlab::util::{create_output_dir, write_atomic};
 use std::path::PathBuf;
@@ -44,13 +43,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let mut scene = Scene::load(&a.scene)?;
-    for (p, v) in super::assignments(&scene, "--set", &a.set)? {
-        p.apply(&mut scene, v);
-    }
-    if let Err(e) = scene.validate() {
-        bail!("--set: the scene with these values is refused: {e}");
-    }
+    let scene = super::load_with_sets(&a.scene, &a.set)?;
     let mut d = Dispense::default();
     for s in &a.dispense {
         let Some((name, v)) = s.split_once('=') else {
