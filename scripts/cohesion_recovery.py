@@ -118,6 +118,20 @@ def page(rows, pairs, threads):
                 else "."
             ),
         ]
+        cs = [r["c"] for r in rows]
+        angles = [r["angle"] for r in rows]
+        if len(rows) >= 2 and max(cs) > min(cs):
+            per_pa = (max(angles) - min(angles)) / (max(cs) - min(cs))
+            lines.append(
+                f"- Over these hidden cohesions ({min(cs):.2f}–{max(cs):.2f} Pa) the observed "
+                f"angles span {min(angles):.2f}–{max(angles):.2f}°, {per_pa:.2f}° per Pa"
+                + (
+                    f": at that sensitivity the packings' {ANGLE_SD}° alone is worth "
+                    f"{ANGLE_SD / per_pa:.2f} Pa, and one angle cannot pin the cohesion there."
+                    if per_pa < 2.0
+                    else "."
+                )
+            )
     lines += [
         "",
         "Not built yet (issue 63): φ and c together (one angle cannot separate them; a second "
