@@ -124,13 +124,11 @@ pub fn heap(scene: &Scene, seed: u64, opts: &SimOptions) -> Result<Heap> {
         .flat_map(|b| b.v.iter())
         .map(|v| v.length())
         .fold(0.0, f64::max);
-    let ppc = scene
+    let spacing = scene
         .bodies
         .iter()
-        .map(|b| b.particles_per_cell)
-        .max()
-        .unwrap_or(8);
-    let spacing = scene.simulation.dx / (ppc as f64).cbrt();
+        .map(|b| scene.particle_spacing(b))
+        .fold(scene.simulation.dx, f64::min);
     let (angle_deg, flanks_deg, height_m, radius_m) = measure(&xs, scene.floor_height(), spacing)?;
     Ok(Heap {
         seed,

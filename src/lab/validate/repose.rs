@@ -19,8 +19,6 @@ use crate::sim::SimOptions;
 pub const FRICTION_DEG: [f64; 2] = [25.0, 35.0];
 /// The cohesions of the table (Pa): 0 up to where a 12 mm heap stands some 30° steeper.
 pub const COHESION_PA: [f64; 4] = [0.0, 2.5, 5.0, 10.0];
-/// Standard gravity (m/s²), as the scenes use it.
-const G: f64 = 9.81;
 
 /// One heap of the table.
 #[derive(Clone, Debug)]
@@ -32,18 +30,18 @@ pub struct Row {
     pub culmann_deg: f64,
 }
 
-/// Culmann's critical angle β of a slope of height `h` (m) in a soil of unit weight `ρg`,
+/// Culmann's critical angle β of a slope of height `h` (m) in a soil of unit weight `γ = ρg`,
 /// cohesion `c` (Pa) and friction angle `φ`: the β at which a planar slip surface through the
 /// toe is at limit equilibrium, `h = 4c·sin β·cos φ / (ρg·(1 − cos(β − φ)))`. A cohesionless
 /// slope stands at φ; one lower than Rankine's critical height `4c·tan(45° + φ/2)/(ρg)` stands
 /// vertical (90°).
-pub fn culmann_angle_deg(h: f64, c: f64, friction_deg: f64, density: f64) -> f64 {
+pub fn culmann_angle_deg(h: f64, c: f64, friction_deg: f64, unit_weight: f64) -> f64 {
     let phi = friction_deg.to_radians();
     if c <= 0.0 {
         return friction_deg;
     }
     let height =
-        |beta: f64| 4.0 * c * beta.sin() * phi.cos() / (density * G * (1.0 - (beta - phi).cos()));
+        |beta: f64| 4.0 * c * beta.sin() * phi.cos() / (unit_weight * (1.0 - (beta - phi).cos()));
     let vertical = std::f64::consts::FRAC_PI_2;
     if height(vertical) >= h {
         return 90.0;
@@ -95,7 +93,8 @@ pub fn run(
                     h.height_m,
                     c,
                     phi,
-                    s.materials[&body.material].density(),
+                    s.materials[&body.material].density()
+                        * glam::DVec3::from(s.simulation.gravity).length(),
                 ),
                 heap: h,
             });
@@ -147,14 +146,15 @@ mod tests {
     #[test]
     fn culmann_meets_its_two_limits() {
         // Cohesionless: the friction angle; at Rankine's critical height: vertical.
-        assert_eq!(culmann_angle_deg(0.01, 0.0, 30.0, 1500.0), 30.0);
-        let (c, phi, rho) = (20.0, 30.0, 1500.0);
-        let rankine = 4.0 * c * (45f64 + phi / 2.0).to_radians().tan() / (rho * G);
-        assert_eq!(culmann_angle_deg(0.999 * rankine, c, phi, rho), 90.0);
-        let just_above = culmann_angle_deg(1.001 * rankine, c, phi, rho);
+        let gamma = 1500.0 * 9.81;
+        assert_eq!(culmann_angle_deg(0.01, 0.0, 30.0, gamma), 30.0);
+        let (c, phi) = (20.0, 30.0);
+        let rankine = 4.0 * c * (45f64 + phi / 2.0).to_radians().tan() / gamma;
+        assert_eq!(culmann_angle_deg(0.999 * rankine, c, phi, gamma), 90.0);
+        let just_above = culmann_angle_deg(1.001 * rankine, c, phi, gamma);
         assert!(just_above < 90.0 && just_above > 89.0, "{just_above}");
         // Taller slopes of the same soil stand at lower angles, down towards φ.
-        let tall = culmann_angle_deg(100.0 * rankine, c, phi, rho);
+        let tall = culmann_angle_deg(100.0 * rankine, c, phi, gamma);
         assert!(tall > phi && tall < 35.0, "{tall}");
     }
 }
