@@ -47,13 +47,9 @@ pub fn column(friction_deg: f64, c: f64, cells: usize) -> Collapse {
 }
 
 /// Rankine's critical cohesion for the column of height `h` (m) at Klár's `φ`: the cohesion
-/// whose plane-strain Rankine height is `h`.
+/// whose plane-strain Rankine height ([`rankine_heights`]'s first reading) is `h`.
 pub fn rankine_cohesion(h: f64, friction_deg: f64) -> f64 {
-    let ps = plane_strain_angle_deg(friction_deg).to_radians();
-    let phi = friction_deg.to_radians();
-    // H_c = 4·c_ps·tan(45° + φ_ps/2)/(ρg), c_ps = c·tan φ_ps/tan φ.
-    let c_ps = DENSITY * G * h / (4.0 * (std::f64::consts::FRAC_PI_4 + ps / 2.0).tan());
-    c_ps * phi.tan() / ps.tan()
+    DENSITY * G * h / rankine_heights(friction_deg)[0]
 }
 
 /// Rankine's critical height in units of `c/(ρg)` for friction angle `phi` (radians) and a
