@@ -17,10 +17,11 @@ use serde_json::json;
 use std::path::PathBuf;
 
 /// The skill problem of `--scene` (else `default`), its indicator's unit, and the worker pool
-/// of `threads` started.
+/// started with `threads` (else the scene's own thread count, or all cores where `all_cores`).
 fn skill_problem(
     scene: &Option<PathBuf>,
-    threads: usize,
+    threads: Option<usize>,
+    all_cores: bool,
     default: &str,
 ) -> Result<(PathBuf, Problem, &'static str)> {
     let scene = scene.clone().unwrap_or_else(|| PathBuf::from(default));
@@ -29,7 +30,12 @@ fn skill_problem(
         crate::scene::TargetValue::Particles(_) => "particles",
         crate::scene::TargetValue::Grams(_) => "g",
     };
-    start_workers(threads)?;
+    let own = if all_cores {
+        0
+    } else {
+        problem.scene().simulation.threads
+    };
+    start_workers(threads.unwrap_or(own))?;
     Ok((scene, problem, unit))
 }
 
@@ -61,15 +67,13 @@ impl Study for Landscape {
         if n < 2 {
             bail!("study landscape: --samples {n}: expected at least 2");
         }
-        let scene = a.scene.clone();
-        let default = "scenes/powder_transport.ron";
-        let path = scene.clone().unwrap_or_else(|| PathBuf::from(default));
         // The scene's own thread count unless --threads says otherwise.
-        let threads = match a.run.threads {
-            Some(t) => t,
-            None => crate::scene::Scene::load(&path)?.simulation.threads,
-        };
-        let (scene, problem, unit) = skill_problem(&scene, threads, default)?;
+        let (scene, problem, unit) = skill_problem(
+            &a.scene,
+            a.run.threads,
+            false,
+            "scenes/powder_transport.ron",
+        )?;
         announce_work(&scene, n as f64)?;
         let thetas = landscape::sobol_thetas(n, 0);
         let pb = ctx.bar(n as u64);
@@ -228,11 +232,8 @@ impl Study for Directions {
     type Outcome = (Vec<directions::Row>, Vec<f64>, PathBuf, &'static str);
 
     fn run(a: &DirectionsArgs, ctx: Ctx) -> Result<Self::Outcome> {
-        let (scene, problem, unit) = skill_problem(
-            &a.scene,
-            a.run.threads.unwrap_or(0),
-            "scenes/powder_transport.ron",
-        )?;
+        let (scene, problem, unit) =
+            skill_problem(&a.scene, a.run.threads, true, "scenes/powder_transport.ron")?;
         let landscape = a.page.results.join("landscape.csv");
         let mut points = directions::default_points(Some(&landscape));
         let steps: Vec<f64> = if a.run.quick {
@@ -317,11 +318,8 @@ impl Study for Refine {
         if a.over.is_some_and(|g| !(g.is_finite() && g >= 0.0)) {
             bail!("study refine: --over must be a finite amount of at least 0 (the target's unit)");
         }
-        let (scene, problem, unit) = skill_problem(
-            &a.scene,
-            a.threads.unwrap_or(0),
-            "scenes/precise_dosing.ron",
-        )?;
+        let (scene, problem, unit) =
+            skill_problem(&a.scene, a.threads, true, "scenes/precise_dosing.ron")?;
         // At most: trust's rollouts depend on its accepted steps, and never pass the budget.
         let per_seed = 5 * budget + refine::gradient_rollouts(budget);
         announce_work(&scene, (a.knots.len() * seeds * 6 * budget) as f64)?;
