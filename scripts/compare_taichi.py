@@ -48,6 +48,8 @@ def main():
     ap.add_argument("--powderlab", default=None, help="path of the powderlab binary")
     ap.add_argument("--backward", action="store_true",
                     help="compare forward+backward (Taichi's ti.ad.Tape, powderlab bench --backward)")
+    ap.add_argument("--svd", choices=["F64", "F32"], default="F64",
+                    help="powderlab's SVD precision (the scene's simulation.svd)")
     args = ap.parse_args()
     target = os.environ.get("CARGO_TARGET_DIR", str(ROOT / "target"))
     exe = args.powderlab or str(pathlib.Path(target) / "release" / "powderlab")
@@ -58,6 +60,10 @@ def main():
         src = src.replace("cells: (48, 48, 48)", f"cells: ({args.n_grid}, {args.n_grid}, {args.n_grid})")
         src = src.replace("dx: 0.020833333333333332", f"dx: {dx}")
         scene = pathlib.Path(os.environ.get("TMPDIR", "/tmp")) / f"sand_box_n{args.n_grid}.ron"
+        scene.write_text(src)
+    if args.svd != "F64":
+        src = scene.read_text().replace("empty_node_ratio: 1e-6,", f"empty_node_ratio: 1e-6, svd: {args.svd},")
+        scene = pathlib.Path(os.environ.get("TMPDIR", "/tmp")) / f"sand_box_n{args.n_grid}_svd{args.svd}.ron"
         scene.write_text(src)
     rows = []
     for r in range(args.rounds):

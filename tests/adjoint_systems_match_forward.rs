@@ -83,6 +83,7 @@ fn world(rng: &mut Rng) -> (World, Entity) {
         dt_sub: 1e-3,
         gravity: DVec3::new(0.0, -9.81, 0.0),
         empty_node_mass: 0.0,
+        svd: Precision::F64,
     });
     w.insert_resource(Health::default());
     w.insert_resource(Clock::default());

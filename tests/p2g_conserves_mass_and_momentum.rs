@@ -74,6 +74,7 @@ fn p2g_conserves_mass_and_momentum() {
         dt_sub: 5e-4,
         gravity: DVec3::ZERO,
         empty_node_mass: 0.0,
+        svd: Precision::F64,
     });
     world.insert_resource(Health::default());
     let mut s = 5;

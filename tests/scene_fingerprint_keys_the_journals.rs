@@ -20,4 +20,14 @@ fn a_comment_keeps_the_fingerprint_and_a_value_changes_it() {
     let mut other = base.clone();
     other.simulation.gravity.1 -= 1e-9;
     assert_ne!(base.fingerprint(), other.fingerprint());
+    // The SVD's precision, added after journals were kept: at its default it leaves the
+    // fingerprint as it was (the value below is the scene's from before the setting); F32 is
+    // another scene.
+    assert_eq!(base.fingerprint(), FINGERPRINT_BEFORE_THE_SVD_SETTING);
+    let mut f32_svd = base.clone();
+    f32_svd.simulation.svd = powderlab::components::Precision::F32;
+    assert_ne!(base.fingerprint(), f32_svd.fingerprint());
 }
+
+/// `powder_transport`'s fingerprint at the commit before `simulation.svd` existed.
+const FINGERPRINT_BEFORE_THE_SVD_SETTING: &str = "2b59c1472115a7b4";

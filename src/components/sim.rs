@@ -17,6 +17,25 @@ pub struct SimParams {
     pub gravity: DVec3,
     /// Nodes with mass at or below this (kg) are empty: their velocity is zero.
     pub empty_node_mass: f64,
+    /// The precision of the SVD stage.
+    pub svd: Precision,
+}
+
+/// The floating-point precision of a stage that offers two (`simulation.svd` in a scene).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Precision {
+    /// f64, as every other stage: the finite-difference checks need it.
+    #[default]
+    F64,
+    /// f32: twice the lanes of a SIMD register and fewer Jacobi sweeps, factors good to about
+    /// 1e-7 of ‖F‖ (`crate::math::svd::svd3_warm_lanes_f32`).
+    F32,
+}
+
+impl Precision {
+    pub fn is_f64(&self) -> bool {
+        *self == Precision::F64
+    }
 }
 
 /// Where the simulation is in time.

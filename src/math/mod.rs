@@ -10,6 +10,7 @@ pub mod eigen;
 pub mod geometry;
 pub mod heightfield;
 pub mod kernel;
+pub mod lanes;
 pub mod mesh;
 pub mod pose;
 pub mod return_map;

@@ -1,7 +1,7 @@
 //! What a scene file holds. Each type documents its fields' units and defaults;
 //! `scenes/README.md` lists them all.
 
-use crate::components::ContactMode;
+use crate::components::{ContactMode, Precision};
 use crate::materials::MaterialSpec;
 use crate::math::sdf::Shape;
 use crate::skills::SkillSpec;
@@ -111,6 +111,14 @@ pub struct SimulationSpec {
     /// to match the reference bit for bit.
     #[serde(default = "default_empty_node_ratio")]
     pub empty_node_ratio: f64,
+    /// Precision of the SVD stage, `F64` or `F32`. Default `F64`. `F32` decomposes eight
+    /// particles per AVX2 register and stops the Jacobi iteration at f32's round-off, the
+    /// factors good to about 1e-7 of ‖F‖; every other quantity stays f64. It changes results at
+    /// that level, so the finite-difference checks run in `F64` (`docs/results/performance.md`,
+    /// "Precision"). Left out of the written scene at its default, so that the fingerprints of
+    /// scenes from before the setting, which key kept journals, stay what they were.
+    #[serde(default, skip_serializing_if = "Precision::is_f64")]
+    pub svd: Precision,
 }
 
 fn default_dt() -> f64 {

@@ -208,6 +208,7 @@ impl Build {
             } else {
                 0.0
             },
+            svd: s.svd,
         });
         // Static containers' contact with the grid nodes, found once (a table per container).
         let mut containers = world.query::<(Entity, &Collider)>();

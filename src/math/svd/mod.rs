@@ -21,9 +21,9 @@ pub struct Svd3 {
 }
 
 /// Largest number of Jacobi sweeps; quadratic convergence reaches f64 round-off in 4–6.
-const MAX_SWEEPS: usize = 12;
+pub(super) const MAX_SWEEPS: usize = 12;
 /// An off-diagonal entry below this fraction of its diagonal pair is treated as zero.
-const OFF_DIAG_REL: f64 = 1e-18;
+pub(super) const OFF_DIAG_REL: f64 = 1e-18;
 
 /// Whether the Jacobi iteration on `A` (upper off-diagonal `a01, a02, a12`, diagonal
 /// `a00, a11, a22`) has converged: the off-diagonal is below 1e-17 of the diagonal, or zero.
@@ -72,7 +72,9 @@ fn jacobi_rotate(a: &mut [[f64; 3]; 3], v: &mut [[f64; 3]; 3], p: usize, q: usiz
 #[inline(always)]
 fn givens(b: &mut [[f64; 3]; 3], q: &mut [[f64; 3]; 3], j: usize, i: usize) {
     let (x, y) = (b[j][j], b[i][j]);
-    let (c, s) = if y == 0.0 {
+    // `x² + y²` underflows to 0 where both are below about 1e-162 (1e-23 in f32, where
+    // round-off leaves such entries): the column is then zero to the precision, as when `y` is.
+    let (c, s) = if y == 0.0 || x * x + y * y == 0.0 {
         if x >= 0.0 {
             return;
         }
@@ -94,7 +96,7 @@ fn givens(b: &mut [[f64; 3]; 3], q: &mut [[f64; 3]; 3], j: usize, i: usize) {
 }
 
 #[inline(always)]
-fn to_rows(m: DMat3) -> [[f64; 3]; 3] {
+pub(super) fn to_rows(m: DMat3) -> [[f64; 3]; 3] {
     // glam stores columns; rows[r][c] = m.col(c)[r]
     let c = m.to_cols_array_2d();
     [
@@ -105,7 +107,7 @@ fn to_rows(m: DMat3) -> [[f64; 3]; 3] {
 }
 
 #[inline(always)]
-fn from_rows(r: [[f64; 3]; 3]) -> DMat3 {
+pub(super) fn from_rows(r: [[f64; 3]; 3]) -> DMat3 {
     DMat3::from_cols_array_2d(&[
         [r[0][0], r[1][0], r[2][0]],
         [r[0][1], r[1][1], r[2][1]],
@@ -165,214 +167,6 @@ pub fn svd3_warm(f: DMat3, v0: DMat3) -> Svd3 {
     }
 }
 
-/// Particles decomposed together by [`svd3_warm_lanes`].
-pub const LANES: usize = 4;
-
-/// One value per lane; every operation acts lane by lane, so the compiler maps it onto SIMD
-/// registers, and the lanes' independent dependency chains hide the latency of `sqrt` and `/`.
-type Lf = [f64; LANES];
-type Lm = [bool; LANES];
-
-#[inline(always)]
-fn lanes(f: impl Fn(usize) -> f64) -> Lf {
-    std::array::from_fn(f)
-}
-
-#[inline(always)]
-fn mask(f: impl Fn(usize) -> bool) -> Lm {
-    std::array::from_fn(f)
-}
-
-#[inline(always)]
-fn select(m: Lm, a: Lf, b: Lf) -> Lf {
-    lanes(|l| if m[l] { a[l] } else { b[l] })
-}
-
-/// From this `|θ|` on (2²⁷), a Jacobi rotation's general formula reduces exactly to
-/// `t = 0.5/θ`, `c = 1`: `θ²` is at least 2⁵⁴, so adding 1 is below half its ulp, and
-/// `|t| ≤ 2⁻²⁸`, so `t²` is below half an ulp of 1.
-const SMALL_ANGLE_THETA: f64 = (1u64 << 27) as f64;
-
-/// [`jacobi_rotate`] on every lane where `active` holds; the other lanes are left untouched.
-/// Each lane computes exactly the operations of the scalar function, so the results are
-/// bitwise equal to it.
-#[inline(always)]
-fn jacobi_rotate_lanes(
-    a: &mut [[Lf; 3]; 3],
-    v: &mut [[Lf; 3]; 3],
-    active: Lm,
-    p: usize,
-    q: usize,
-    r: usize,
-) {
-    let (apq, app, aqq) = (a[p][q], a[p][p], a[q][q]);
-    let tiny =
-        mask(|l| apq[l].abs() <= OFF_DIAG_REL * (app[l].abs() + aqq[l].abs()) || apq[l] == 0.0);
-    let rot = mask(|l| active[l] && !tiny[l]);
-    let theta = lanes(|l| (aqq[l] - app[l]) / (2.0 * apq[l]));
-    let (t, c, s) = if (0..LANES).all(|l| !rot[l] || theta[l].abs() >= SMALL_ANGLE_THETA) {
-        // Every rotating lane turns by a small angle (as in the last sweep of nearly every
-        // decomposition): there the general formula below gives exactly `t = 0.5/θ`, `c = 1`,
-        // `s = t`, since `θ² + 1` rounds to `θ²`, `√(θ²)` is `|θ|` in IEEE arithmetic, and
-        // `t² + 1` rounds to 1. One division instead of three and two square roots on the
-        // rotation's dependency chain, for the same bits (`small_angle_rotation_is_exact`).
-        let t = lanes(|l| 0.5 / theta[l]);
-        (t, [1.0; LANES], t)
-    } else {
-        let huge = mask(|l| theta[l].abs() > 1e150);
-        let t_huge = lanes(|l| 0.5 / theta[l]);
-        let root = lanes(|l| (theta[l] * theta[l] + 1.0).sqrt());
-        let t = select(
-            huge,
-            t_huge,
-            lanes(|l| theta[l].signum() / (theta[l].abs() + root[l])),
-        );
-        let c = lanes(|l| 1.0 / (t[l] * t[l] + 1.0).sqrt());
-        (t, c, lanes(|l| t[l] * c[l]))
-    };
-    a[p][p] = select(rot, lanes(|l| app[l] - t[l] * apq[l]), app);
-    a[q][q] = select(rot, lanes(|l| aqq[l] + t[l] * apq[l]), aqq);
-    let off = select(active, [0.0; LANES], apq);
-    a[p][q] = off;
-    a[q][p] = off;
-    // `A` is symmetric only up to round-off on entry: a lane that does not rotate keeps both
-    // triangles as they are, as the scalar function's early return does.
-    let (arp, arq) = (a[r][p], a[r][q]);
-    let rp = lanes(|l| c[l] * arp[l] - s[l] * arq[l]);
-    let rq = lanes(|l| s[l] * arp[l] + c[l] * arq[l]);
-    a[p][r] = select(rot, rp, a[p][r]);
-    a[q][r] = select(rot, rq, a[q][r]);
-    a[r][p] = select(rot, rp, arp);
-    a[r][q] = select(rot, rq, arq);
-    for row in v.iter_mut() {
-        let (vp, vq) = (row[p], row[q]);
-        row[p] = select(rot, lanes(|l| c[l] * vp[l] - s[l] * vq[l]), vp);
-        row[q] = select(rot, lanes(|l| s[l] * vp[l] + c[l] * vq[l]), vq);
-    }
-}
-
-/// [`givens`] on every lane, bitwise equal to it.
-#[inline(always)]
-fn givens_lanes(b: &mut [[Lf; 3]; 3], q: &mut [[Lf; 3]; 3], j: usize, i: usize) {
-    let (x, y) = (b[j][j], b[i][j]);
-    let keep = mask(|l| y[l] == 0.0 && x[l] >= 0.0);
-    let inv_r = lanes(|l| 1.0 / (x[l] * x[l] + y[l] * y[l]).sqrt());
-    let c = lanes(|l| if y[l] == 0.0 { -1.0 } else { x[l] * inv_r[l] });
-    let s = lanes(|l| if y[l] == 0.0 { 0.0 } else { y[l] * inv_r[l] });
-    for k in 0..3 {
-        let (bj, bi) = (b[j][k], b[i][k]);
-        b[j][k] = select(keep, bj, lanes(|l| c[l] * bj[l] + s[l] * bi[l]));
-        b[i][k] = select(keep, bi, lanes(|l| -s[l] * bj[l] + c[l] * bi[l]));
-        let (qj, qi) = (q[k][j], q[k][i]);
-        q[k][j] = select(keep, qj, lanes(|l| c[l] * qj[l] + s[l] * qi[l]));
-        q[k][i] = select(keep, qi, lanes(|l| -s[l] * qj[l] + c[l] * qi[l]));
-    }
-}
-
-#[inline(always)]
-fn pack(m: [[[f64; 3]; 3]; LANES]) -> [[Lf; 3]; 3] {
-    std::array::from_fn(|r| std::array::from_fn(|c| lanes(|l| m[l][r][c])))
-}
-
-#[inline(always)]
-fn unpack(m: &[[Lf; 3]; 3], l: usize) -> [[f64; 3]; 3] {
-    std::array::from_fn(|r| std::array::from_fn(|c| m[r][c][l]))
-}
-
-/// [`svd3_warm`] of [`LANES`] matrices at once, lane `l` from `f[l]` and `v0[l]`. Bitwise equal
-/// to calling `svd3_warm` on each: every lane runs the scalar algorithm's operations, and a lane
-/// whose Jacobi iteration has converged is masked out of the further sweeps of the others.
-/// The forward SVD stage runs on this: on `sand_box` (2 threads, AVX2) the stage took 1.48 s
-/// instead of 3.27 s one matrix at a time, since the latency of the rotations' square roots and
-/// divisions overlaps across lanes (`powderlab bench scenes/sand_box.ron --stages`).
-pub fn svd3_warm_lanes(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES] {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, which is all the function's target features ask for.
-        return unsafe { svd3_warm_lanes_avx2(f, v0) };
-    }
-    svd3_warm_lanes_body(f, v0)
-}
-
-/// [`svd3_warm`] of each of up to [`LANES`] matrices, `f[i]` warm-started from `v0[i]`, handed to
-/// `out(i, svd)`: a full group goes through [`svd3_warm_lanes`], a shorter one (the end of a
-/// particle array) one matrix at a time; the results are bitwise the same either way.
-#[inline(always)]
-pub fn svd3_warm_group(f: &[DMat3], v0: &[DMat3], mut out: impl FnMut(usize, Svd3)) {
-    match (
-        <&[DMat3; LANES]>::try_from(f),
-        <&[DMat3; LANES]>::try_from(v0),
-    ) {
-        (Ok(f), Ok(v0)) => {
-            for (l, d) in svd3_warm_lanes(f, v0).into_iter().enumerate() {
-                out(l, d);
-            }
-        }
-        _ => {
-            for (i, (&f, &v0)) in f.iter().zip(v0).enumerate() {
-                out(i, svd3_warm(f, v0));
-            }
-        }
-    }
-}
-
-/// [`svd3_warm_lanes_body`] compiled for AVX2 (four f64 lanes per register). Rust never fuses a
-/// multiply and an add on its own, so the results are the same bits as the baseline build's.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn svd3_warm_lanes_avx2(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES] {
-    svd3_warm_lanes_body(f, v0)
-}
-
-#[inline(always)]
-fn svd3_warm_lanes_body(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES] {
-    let mut a = pack(std::array::from_fn(|l| {
-        to_rows(v0[l].transpose() * (f[l].transpose() * f[l]) * v0[l])
-    }));
-    let mut v = pack(std::array::from_fn(|l| to_rows(v0[l])));
-    let mut active = [true; LANES];
-    for _ in 0..MAX_SWEEPS {
-        for (l, on) in active.iter_mut().enumerate() {
-            *on = *on
-                && !converged(
-                    a[0][1][l], a[0][2][l], a[1][2][l], a[0][0][l], a[1][1][l], a[2][2][l],
-                );
-        }
-        if !active.iter().any(|&on| on) {
-            break;
-        }
-        jacobi_rotate_lanes(&mut a, &mut v, active, 0, 1, 2);
-        jacobi_rotate_lanes(&mut a, &mut v, active, 0, 2, 1);
-        jacobi_rotate_lanes(&mut a, &mut v, active, 1, 2, 0);
-    }
-    // Sort as `svd3_warm` does: each swap exchanges two columns and negates the second.
-    let mut ev = [a[0][0], a[1][1], a[2][2]];
-    for (i, j) in [(0, 1), (0, 2), (1, 2)] {
-        let sw = mask(|l| ev[i][l] < ev[j][l]);
-        let (ei, ej) = (ev[i], ev[j]);
-        ev[i] = select(sw, ej, ei);
-        ev[j] = select(sw, ei, ej);
-        for row in v.iter_mut() {
-            let (vi, vj) = (row[i], row[j]);
-            row[i] = select(sw, vj, vi);
-            row[j] = select(sw, lanes(|l| -vi[l]), vj);
-        }
-    }
-    let vm: [DMat3; LANES] = std::array::from_fn(|l| from_rows(unpack(&v, l)));
-    let mut b = pack(std::array::from_fn(|l| to_rows(f[l] * vm[l])));
-    let one = [1.0; LANES];
-    let zero = [0.0; LANES];
-    let mut q = [[one, zero, zero], [zero, one, zero], [zero, zero, one]];
-    givens_lanes(&mut b, &mut q, 0, 1);
-    givens_lanes(&mut b, &mut q, 0, 2);
-    givens_lanes(&mut b, &mut q, 1, 2);
-    std::array::from_fn(|l| Svd3 {
-        u: from_rows(unpack(&q, l)),
-        s: DVec3::new(b[0][0][l], b[1][1][l], b[2][2][l]),
-        v: vm[l],
-    })
-}
-
 /// Smallest `|σ_j² − σ_i²|` the adjoint divides by. Closer singular values (including exactly
 /// equal ones, e.g. `F = I` at rest) use this value with the sign of the difference.
 ///
@@ -422,6 +216,12 @@ pub fn svd3_adj(d: &Svd3, g_u: DMat3, g_s: DVec3, g_v: DMat3) -> DMat3 {
 fn s_adj_diag(g_s: DVec3, i: usize) -> f64 {
     [g_s.x, g_s.y, g_s.z][i]
 }
+
+mod lanes;
+pub use lanes::{
+    svd3_warm_group, svd3_warm_group_f32, svd3_warm_lanes, svd3_warm_lanes_f32, SvdReal, LANES,
+    LANES_F32,
+};
 
 #[cfg(test)]
 mod tests;

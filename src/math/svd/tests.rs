@@ -1,6 +1,7 @@
 //! The SVD against reconstruction, orthogonality and its four-lane twin, and its adjoint
 //! against central differences.
 
+use super::lanes::{svd3_warm_lanes_body, svd3_warm_lanes_f32_body};
 use super::*;
 
 /// Reconstruction and orthogonality error allowed, relative to ‖F‖, in f64.
@@ -242,7 +243,10 @@ fn lanes_are_bitwise_equal_to_scalar() {
         let (f, v0): ([DMat3; LANES], [DMat3; LANES]) =
             (f.try_into().unwrap(), v0.try_into().unwrap());
         // The dispatched path (AVX2 where the CPU has it) and the baseline build.
-        for together in [svd3_warm_lanes(&f, &v0), svd3_warm_lanes_body(&f, &v0)] {
+        for together in [
+            svd3_warm_lanes(&f, &v0),
+            svd3_warm_lanes_body::<crate::math::lanes::Arr<f64, LANES>>(&f, &v0),
+        ] {
             for l in 0..LANES {
                 assert_eq!(
                     bits(&together[l]),
@@ -275,7 +279,7 @@ fn small_angle_rotation_is_exact() {
             };
             let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
             let theta = sign * m * 2f64.powi(e);
-            assert!(theta.abs() >= SMALL_ANGLE_THETA && theta.abs() <= 1e150);
+            assert!(theta.abs() >= <f64 as SvdReal>::SMALL_ANGLE_THETA && theta.abs() <= 1e150);
             let root = (theta * theta + 1.0).sqrt();
             let t = theta.signum() / (theta.abs() + root);
             let c = 1.0 / (t * t + 1.0).sqrt();
@@ -286,4 +290,115 @@ fn small_angle_rotation_is_exact() {
         }
     }
     assert!(checked > 900_000);
+}
+
+/// f32's shortcut, as [`small_angle_rotation_is_exact`] for f64: every `|θ|` from 2¹³ up to
+/// the `HUGE_THETA` branch (1e18), every binade, random mantissas, both signs.
+#[test]
+fn small_angle_rotation_is_exact_in_f32() {
+    let mut seed = 9u64;
+    for e in 13..=58 {
+        for k in 0..20_000 {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let m = if k == 0 {
+                1.0
+            } else {
+                1.0 + (seed >> 41) as f32 / (1u32 << 23) as f32
+            };
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let theta = sign * m * 2f32.powi(e);
+            assert!(theta.abs() >= <f32 as SvdReal>::SMALL_ANGLE_THETA);
+            assert!(theta.abs() <= <f32 as SvdReal>::HUGE_THETA);
+            let root = (theta * theta + 1.0).sqrt();
+            let t = theta.signum() / (theta.abs() + root);
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            assert_eq!(t.to_bits(), (0.5 / theta).to_bits(), "θ = {theta:e}");
+            assert_eq!(c, 1.0, "θ = {theta:e}");
+        }
+    }
+}
+
+/// What f32 can hold: a decomposition good to a few ulps of f32 (ε = 1.2e-7) relative to
+/// `‖F‖`, for the matrices a simulation meets and for the degenerate ones.
+const F32_TOL: f64 = 2e-6;
+
+/// The f32 lanes give the SVD of `F` to f32's precision (reconstruction, orthonormal factors
+/// with det +1, σ sorted and equal to the f64 SVD's), the same bits dispatched (AVX2) and in
+/// the baseline build, and a lane's result does not depend on its neighbours.
+#[test]
+fn f32_lanes_decompose_to_f32_precision() {
+    let mut s = 23;
+    let r = DMat3::from_quat(crate::math::pose::quat_from_rotation_vector(DVec3::new(
+        -0.7, 0.2, 1.3,
+    )));
+    let special = [
+        DMat3::IDENTITY,
+        DMat3::ZERO,
+        DMat3::from_diagonal(DVec3::new(1.0, 1.0, 1e-5)),
+        DMat3::from_diagonal(DVec3::new(1.0, -1.0, 1.0)),
+        r * DMat3::from_diagonal(DVec3::new(1.0, 1.0 + 1e-6, 1.0 - 1e-6)),
+        DMat3::from_cols(DVec3::X, 2.0 * DVec3::X, -DVec3::X),
+        // Met on `sand_box`: entries whose squares underflow f32, under a permuting warm start.
+        DMat3::from_cols(
+            DVec3::new(1.0, 1.2e-19, -4.1e-23),
+            DVec3::new(-4.7e-20, 0.9997, -3.2e-8),
+            DVec3::new(-7.4e-24, 8.7e-24, 1.0000003),
+        ),
+    ];
+    let max_abs = |m: DMat3| m.to_cols_array().iter().fold(0.0f64, |a, x| a.max(x.abs()));
+    for k in 0..2000 {
+        let mut rnd = || DMat3::from_cols_array(&std::array::from_fn(|_| lcg(&mut s)));
+        let (f, v0): (Vec<DMat3>, Vec<DMat3>) = (0..LANES_F32)
+            .map(|l| match (k + 3 * l) % 5 {
+                0 => (special[(k + l) % special.len()], DMat3::IDENTITY),
+                1 if l % 2 == 0 => (rnd(), DMat3::IDENTITY),
+                1 => (
+                    special[(k + l) % special.len()],
+                    DMat3::from_cols(DVec3::X, DVec3::Z, -DVec3::Y),
+                ),
+                2 => {
+                    let f = DMat3::IDENTITY + 0.3 * rnd();
+                    let v0 = svd3(f).v;
+                    (f + 1e-4 * rnd(), v0)
+                }
+                3 => (-(DMat3::IDENTITY + 0.01 * rnd()), r),
+                _ => (r * (DMat3::IDENTITY + 0.02 * rnd()), svd3(rnd()).v),
+            })
+            .unzip();
+        let (f, v0): ([DMat3; LANES_F32], [DMat3; LANES_F32]) =
+            (f.try_into().unwrap(), v0.try_into().unwrap());
+        let got = svd3_warm_lanes_f32(&f, &v0);
+        let base = svd3_warm_lanes_f32_body::<crate::math::lanes::Arr<f32, LANES_F32>>(&f, &v0);
+        // Lanes rotated by one place: each matrix meets other neighbours.
+        let rot = |m: &[DMat3; LANES_F32]| -> [DMat3; LANES_F32] {
+            std::array::from_fn(|l| m[(l + 1) % LANES_F32])
+        };
+        let shifted = svd3_warm_lanes_f32(&rot(&f), &rot(&v0));
+        for l in 0..LANES_F32 {
+            let d = &got[l];
+            assert_eq!(bits(d), bits(&base[l]), "AVX2 against baseline, lane {l}");
+            assert_eq!(bits(&shifted[(l + LANES_F32 - 1) % LANES_F32]), bits(d));
+            let scale = max_abs(f[l]).max(1e-30);
+            let recon = d.u * DMat3::from_diagonal(d.s) * d.v.transpose();
+            assert!(
+                max_abs(recon - f[l]) <= F32_TOL * scale,
+                "reconstruction {:e} for {:?}",
+                max_abs(recon - f[l]),
+                f[l]
+            );
+            for m in [d.u, d.v] {
+                assert!(max_abs(m.transpose() * m - DMat3::IDENTITY) < F32_TOL);
+                assert!((m.determinant() - 1.0).abs() < F32_TOL);
+            }
+            let exact = svd3(f[l]).s;
+            assert!(
+                max_abs(DMat3::from_diagonal(d.s - exact)) <= F32_TOL * scale,
+                "σ {:?} against {:?}",
+                d.s,
+                exact
+            );
+        }
+    }
 }
