@@ -28,6 +28,8 @@ LEVERS = [
     ("4-wide grid nodes, transfer loops compiled for AVX2", "68347f7", "e34eb12", "forward"),
     ("4-wide grid nodes, transfer loops compiled for AVX2", "68347f7", "e34eb12", "backward"),
     ("small-angle Jacobi rotations in the SVD", "e34eb12", "683a78f", "forward"),
+    ("SVD lanes in AVX registers", "89c60e3", "190be08", "forward"),
+    ("SVD lanes in AVX registers", "89c60e3", "190be08", "backward"),
 ]
 BEFORE = "5b8b95d"  # the build before this page's levers
 
@@ -69,6 +71,16 @@ def bench(exe, scene, *args):
     return last_json(p.stdout)
 
 
+def f32_scene(name, out):
+    """The shipped scene `name` with `simulation.svd: F32`, written under `out`."""
+    src = (ROOT / "scenes" / name).read_text()
+    head, sep, rest = src.partition("simulation: (")
+    assert sep, f"{name} has no simulation section"
+    path = out / name.replace(".ron", "_svd_f32.ron")
+    path.write_text(head + sep + "svd: F32, " + rest)
+    return path
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="/tmp/powderlab-performance")
@@ -87,7 +99,9 @@ def main():
 
     print("taichi", file=sys.stderr)
     env = {**os.environ, "CARGO_TARGET_DIR": str(TARGET)}
-    for mode, extra in [("forward", []), ("backward", ["--backward"])]:
+    for mode, extra in [("forward", []), ("backward", ["--backward"]),
+                        ("forward_svd_f32", ["--svd", "F32"]),
+                        ("backward_svd_f32", ["--backward", "--svd", "F32"])]:
         p = sh([sys.executable, str(ROOT / "scripts" / "compare_taichi.py"), "--rounds", "2",
                 "--powderlab", str(exe["now"]), *extra], env=env)
         res[f"taichi_{mode}"] = last_json(p.stdout)
@@ -128,6 +142,25 @@ def main():
         rows.append({"with": on["particle_substeps_per_s"], "without": off["particle_substeps_per_s"],
                      "same_bits": on["state_fingerprint"] == off["state_fingerprint"]})
     lev["active-block grid (sand_box)"] = rows
+    # The f32 SVD against the f64 one, in one binary: the same scene with `svd: F32`.
+    rows = []
+    for _ in range(a.pairs):
+        on = bench(exe["now"], str(f32_scene("sand_box.ron", out)), "--threads", "2")
+        off = bench(exe["now"], "sand_box.ron", "--threads", "2")
+        rows.append({"with": on["particle_substeps_per_s"], "without": off["particle_substeps_per_s"],
+                     "mean_x_with": on["final_mean_position_m"],
+                     "mean_x_without": off["final_mean_position_m"]})
+    lev["f32 SVD (simulation.svd: F32, sand_box)"] = rows
+    rows = []
+    for _ in range(3):
+        on = bench(exe["now"], str(f32_scene("sand_box.ron", out)), "--threads", "2", "--backward")
+        off = bench(exe["now"], "sand_box.ron", "--threads", "2", "--backward")
+        rows.append({"with_peak_mb": on["peak_rss_bytes"] / 1e6, "without_peak_mb": off["peak_rss_bytes"] / 1e6,
+                     "with_rate": on["particle_substeps_per_s_forward_backward"],
+                     "without_rate": off["particle_substeps_per_s_forward_backward"],
+                     "same_gradient": False, "grad_with": on["grad_tool_velocity"],
+                     "grad_without": off["grad_tool_velocity"]})
+    lev["f32 SVD (simulation.svd: F32, sand_box) (forward + backward)"] = rows
     for name, without, with_, kind in LEVERS:
         rows = []
         w_exe = exe[with_]
@@ -164,6 +197,7 @@ def main():
 
     print("vial", file=sys.stderr)
     res["vial"] = bench(exe["now"], "vial_scale.ron", "--threads", "2")
+    res["vial_svd_f32"] = bench(exe["now"], str(f32_scene("vial_scale.ron", out)), "--threads", "2")
 
     print("growth", file=sys.stderr)
     p = sh([str(exe["now"]), "study", "growth", "--json", "--out", str(ROOT / "docs" / "results")],
@@ -179,7 +213,9 @@ def report(res):
     b = res["taichi_backward"]
     print(f"cpu: {f['cpu']}, AVX-512 {'yes' if f['avx512'] else 'no'}")
     print("\n| | Taichi 1.7.4 CPU (f32) | powderlab (f64) | ratio (goal 5×) |\n|---|---|---|---|")
-    for name, d, key in [("forward", f, None), ("forward + backward", b, None)]:
+    for name, d, key in [("forward", f, None), ("forward + backward", b, None),
+                         ("forward, f32 SVD", res["taichi_forward_svd_f32"], None),
+                         ("forward + backward, f32 SVD", res["taichi_backward_svd_f32"], None)]:
         for r in d["rounds"]:
             print(f"| {name}, round {r['round'] + 1} | {r['taichi_particle_substeps_per_s'] / 1e6:.3f} M/s "
                   f"| {r['powderlab_particle_substeps_per_s'] / 1e6:.3f} M/s | **{r['ratio']:.2f}×** |")
@@ -205,11 +241,20 @@ def report(res):
                 print(f"| {name} | peak RSS {x['with_peak_mb']:,.0f} MB against {x['without_peak_mb']:,.0f} MB"
                       + (f"; {x['with_rate'] / x['without_rate']:.3f}× the throughput; same gradient: {x['same_gradient']}"
                          if "with_rate" in x else "") + " |")
-    v = res["vial"]
-    ps = v["particles"] * v["substeps_total"]
-    print(f"\nvial: {v['particles']} particles, {v['substeps_total']} substeps ({v['steps']} steps), "
-          f"{ps / 1e9:.3f} G particle-substeps in {v['wall_s']:.1f} s ({v['particle_substeps_per_s'] / 1e6:.2f} M/s); "
-          f"0.23 G would take {0.23e9 / v['particle_substeps_per_s']:.1f} s")
+    for key in ["vial", "vial_svd_f32"]:
+        v = res[key]
+        ps = v["particles"] * v["substeps_total"]
+        print(f"\n{key}: {v['particles']} particles, {v['substeps_total']} substeps ({v['steps']} steps), "
+              f"{ps / 1e9:.3f} G particle-substeps in {v['wall_s']:.1f} s ({v['particle_substeps_per_s'] / 1e6:.2f} M/s); "
+              f"0.23 G would take {0.23e9 / v['particle_substeps_per_s']:.1f} s")
+    for name, rows in res["levers"].items():
+        for x in rows:
+            if "mean_x_with" in x and x["mean_x_with"] != x["mean_x_without"]:
+                print(f"{name}: final mean position {x['mean_x_with']} against {x['mean_x_without']}")
+                break
+            if "grad_with" in x:
+                print(f"{name}: tool-velocity gradient {x['grad_with']} against {x['grad_without']}")
+                break
     g = res["growth"]
     print(f"\ngrowth: particle spread {g['particle_series_max_over_min_throughput']:.3f}, grid largest/smallest "
           f"{g['grid_series_largest_over_smallest']:.2f} (dense {g['grid_dense_series_largest_over_smallest']:.2f})")
