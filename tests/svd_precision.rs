@@ -12,12 +12,7 @@ mod common;
 
 const STEPS: usize = 8;
 
-const SRC: &str = r#"Scene(
-    simulation: (cells: (16, 16, 12), dx: 0.01, dt: 0.01, substeps: 10, stability: Auto),
-    materials: { "sand": DruckerPrager((youngs_modulus: 2e4, poisson_ratio: 0.3, friction_deg: 30.0)) },
-    bodies: [(name: "sand", material: "sand", fill: Box(min: (0.05, 0.03, 0.04), max: (0.08, 0.09, 0.07)),
-              particles_per_cell: 8, lattice: Jittered(0.4), velocity: (0.2, 0.0, 0.0))],
-)"#;
+const SRC: &str = common::SAND_COLUMN;
 
 fn column(svd: Precision) -> Scene {
     let mut s = common::parse(SRC).unwrap();

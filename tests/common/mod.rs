@@ -141,3 +141,12 @@ pub fn succeeds(cmd: &mut std::process::Command) -> std::process::Output {
     );
     out
 }
+
+/// A small sand column collapsing on the domain floor with plasticity active, the scene of the
+/// end-to-end gradient checks (`gradient_matches_finite_differences`, `svd_precision`).
+pub const SAND_COLUMN: &str = r#"Scene(
+    simulation: (cells: (16, 16, 12), dx: 0.01, dt: 0.01, substeps: 10, stability: Auto),
+    materials: { "sand": DruckerPrager((youngs_modulus: 2e4, poisson_ratio: 0.3, friction_deg: 30.0)) },
+    bodies: [(name: "sand", material: "sand", fill: Box(min: (0.05, 0.03, 0.04), max: (0.08, 0.09, 0.07)),
+              particles_per_cell: 8, lattice: Jittered(0.4), velocity: (0.2, 0.0, 0.0))],
+)"#;

@@ -259,65 +259,72 @@ fn lanes_are_bitwise_equal_to_scalar() {
     }
 }
 
+/// The rotation of `θ` by the general formula is the small-angle shortcut's, `t = 0.5/θ` and
+/// `c = 1`, to the bit.
+fn assert_small_angle_exact<T>(theta: T, bits: fn(T) -> u64)
+where
+    T: SvdReal + crate::math::lanes::Real + std::fmt::LowerExp,
+{
+    assert!(theta.abs() >= T::SMALL_ANGLE_THETA && theta.abs() <= T::HUGE_THETA);
+    let root = (theta * theta + T::ONE).sqrt();
+    let t = theta.signum() / (theta.abs() + root);
+    let c = T::ONE / (t * t + T::ONE).sqrt();
+    assert_eq!(bits(t), bits(T::HALF / theta), "θ = {theta:e}");
+    assert!(c == T::ONE, "θ = {theta:e}");
+}
+
+/// `count` values `±m·2^e` for each binade `e` of `binades`: `m = 1` first, then random
+/// mantissas of `digits` bits (exact in the type tested), the signs alternating.
+fn binade_samples(
+    binades: std::ops::RangeInclusive<i32>,
+    count: usize,
+    digits: u32,
+    mut seed: u64,
+) -> impl Iterator<Item = f64> {
+    binades.flat_map(move |e| {
+        (0..count)
+            .map(|k| {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let m = if k == 0 {
+                    1.0
+                } else {
+                    1.0 + (seed >> (64 - digits)) as f64 / (1u64 << digits) as f64
+                };
+                let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+                sign * m * 2f64.powi(e)
+            })
+            .collect::<Vec<_>>()
+    })
+}
+
 /// The small-angle shortcut of the lane rotation is the general formula's result to the bit:
 /// for every `|θ| ≥ 2²⁷` (below the 1e150 branch), `sign(θ)/(|θ| + √(θ² + 1))` is `0.5/θ` and
 /// `1/√(t² + 1)` is 1. Checked over every binade from 2²⁷ up, with random mantissas and both
 /// signs, and at the bound itself.
 #[test]
 fn small_angle_rotation_is_exact() {
-    let mut seed = 5u64;
-    let mut checked = 0;
-    for e in 27..=497 {
-        for k in 0..2000 {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let m = if k == 0 {
-                1.0
-            } else {
-                1.0 + (seed >> 11) as f64 / (1u64 << 53) as f64
-            };
-            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
-            let theta = sign * m * 2f64.powi(e);
-            assert!(theta.abs() >= <f64 as SvdReal>::SMALL_ANGLE_THETA && theta.abs() <= 1e150);
-            let root = (theta * theta + 1.0).sqrt();
-            let t = theta.signum() / (theta.abs() + root);
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            assert_eq!(t.to_bits(), (0.5 / theta).to_bits(), "θ = {theta:e}");
-            assert_eq!(c, 1.0, "θ = {theta:e}");
-            assert_eq!((t * c).to_bits(), t.to_bits());
-            checked += 1;
-        }
-    }
-    assert!(checked > 900_000);
+    let thetas = binade_samples(27..=497, 2000, 52, 5);
+    assert_eq!(
+        thetas
+            .map(|t| assert_small_angle_exact(t, f64::to_bits))
+            .count(),
+        942_000
+    );
 }
 
-/// f32's shortcut, as [`small_angle_rotation_is_exact`] for f64: every `|θ|` from 2¹³ up to
-/// the `HUGE_THETA` branch (1e18), every binade, random mantissas, both signs.
+/// f32's shortcut likewise: every `|θ|` from 2¹³ up to the `HUGE_THETA` branch (1e18).
 #[test]
 fn small_angle_rotation_is_exact_in_f32() {
-    let mut seed = 9u64;
-    for e in 13..=58 {
-        for k in 0..20_000 {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let m = if k == 0 {
-                1.0
-            } else {
-                1.0 + (seed >> 41) as f32 / (1u32 << 23) as f32
-            };
-            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
-            let theta = sign * m * 2f32.powi(e);
-            assert!(theta.abs() >= <f32 as SvdReal>::SMALL_ANGLE_THETA);
-            assert!(theta.abs() <= <f32 as SvdReal>::HUGE_THETA);
-            let root = (theta * theta + 1.0).sqrt();
-            let t = theta.signum() / (theta.abs() + root);
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            assert_eq!(t.to_bits(), (0.5 / theta).to_bits(), "θ = {theta:e}");
-            assert_eq!(c, 1.0, "θ = {theta:e}");
-        }
-    }
+    let thetas = binade_samples(13..=58, 20_000, 23, 9);
+    let bits = |x: f32| u64::from(x.to_bits());
+    assert_eq!(
+        thetas
+            .map(|t| assert_small_angle_exact(t as f32, bits))
+            .count(),
+        920_000
+    );
 }
 
 /// What f32 can hold: a decomposition good to a few ulps of f32 (ε = 1.2e-7) relative to
