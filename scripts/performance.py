@@ -158,8 +158,9 @@ def main():
         rows.append({"with_peak_mb": on["peak_rss_bytes"] / 1e6, "without_peak_mb": off["peak_rss_bytes"] / 1e6,
                      "with_rate": on["particle_substeps_per_s_forward_backward"],
                      "without_rate": off["particle_substeps_per_s_forward_backward"],
-                     "same_gradient": False, "grad_with": on["grad_tool_velocity"],
-                     "grad_without": off["grad_tool_velocity"]})
+                     "same_gradient": on["grad_v0_sum"] == off["grad_v0_sum"]
+                     and on["grad_tool_velocity"] == off["grad_tool_velocity"],
+                     "grad_with": on["grad_tool_velocity"], "grad_without": off["grad_tool_velocity"]})
     lev["f32 SVD (simulation.svd: F32, sand_box) (forward + backward)"] = rows
     for name, without, with_, kind in LEVERS:
         rows = []
