@@ -89,8 +89,6 @@ pub trait Vector:
     fn eq(self, o: Self) -> Self::Mask;
     /// `a` where `m` holds, else `b`.
     fn select(m: Self::Mask, a: Self, b: Self) -> Self;
-    /// The mask of lane `l` (for the scalar parts of a kernel).
-    fn mask_lane(m: Self::Mask, l: usize) -> bool;
 }
 
 /// The portable vector: an array, each operation a loop the compiler may vectorise.
@@ -206,10 +204,6 @@ impl<T: Real, const N: usize> Vector for Arr<T, N> {
         Arr(std::array::from_fn(
             |l| if m.0[l] { a.0[l] } else { b.0[l] },
         ))
-    }
-    #[inline(always)]
-    fn mask_lane(m: ArrMask<N>, l: usize) -> bool {
-        m.0[l]
     }
 }
 
@@ -363,10 +357,6 @@ mod avx {
                 #[inline(always)]
                 fn select(m: $m, a: Self, b: Self) -> Self {
                     $v(unsafe { $blendv(b.0, a.0, m.0) })
-                }
-                #[inline(always)]
-                fn mask_lane(m: $m, l: usize) -> bool {
-                    unsafe { $movemask(m.0) >> l & 1 == 1 }
                 }
             }
         };

@@ -2,11 +2,12 @@
 //! [`LANES`] in f64, bitwise equal to [`svd3_warm`] on each, and [`LANES_F32`] in f32, for the
 //! scenes that ask for it (`simulation.svd: F32`, `crate::systems::svd`).
 //!
-//! The kernel is written once over [`Real`]: one value per lane, every operation acting lane by
-//! lane, so that the compiler maps the arrays onto SIMD registers (four f64 or eight f32 in an
-//! AVX2 register), and the lanes' independent dependency chains hide the latency of `sqrt` and
-//! `/`. A lane whose Jacobi iteration has converged is masked out of the further sweeps of the
-//! others, so a lane's result never depends on its neighbours.
+//! The kernel is written once over [`Vector`] (`crate::math::lanes`): AVX registers (four f64
+//! or eight f32) where the CPU has AVX2, arrays elsewhere, to the same bits. The lanes'
+//! independent dependency chains hide the latency of `sqrt` and `/`. A lane whose Jacobi
+//! iteration has converged is masked out of the further sweeps of the others, so a lane's result
+//! never depends on its neighbours. The kernel has no closures over vectors: a closure is
+//! compiled apart from the AVX function that calls it, and its intrinsics become calls.
 
 #[cfg(doc)]
 use super::svd3_warm;
@@ -66,11 +67,6 @@ type Rows<V> = [[V; 3]; 3];
 /// A 3-vector of lanes, by component.
 type Col<V> = [V; 3];
 
-#[inline(always)]
-fn splat<V: Vector>(x: V::Scalar) -> V {
-    V::splat(x)
-}
-
 /// Which lanes' iteration has converged (the scalar `converged`, over [`Vector`]).
 #[inline(always)]
 fn converged<V: Vector>(a: &Rows<V>) -> V::Mask
@@ -79,7 +75,7 @@ where
 {
     let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
     let diag = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
-    off.le(splat::<V>(V::Scalar::CONVERGED_REL) * diag) | off.eq(splat(V::Scalar::ZERO))
+    off.le(V::splat(V::Scalar::CONVERGED_REL) * diag) | off.eq(V::splat(V::Scalar::ZERO))
 }
 
 /// The scalar `jacobi_rotate` on every lane where `active` holds; the other lanes are left
@@ -149,7 +145,7 @@ fn jacobi_rotate_lanes<V: Vector>(
 #[inline(always)]
 fn givens_lanes<V: Vector>(b: &mut Rows<V>, q: &mut Rows<V>, j: usize, i: usize) {
     let (x, y) = (b[j][j], b[i][j]);
-    let (zero, one) = (splat::<V>(V::Scalar::ZERO), splat::<V>(V::Scalar::ONE));
+    let (zero, one) = (V::splat(V::Scalar::ZERO), V::splat(V::Scalar::ONE));
     let r2 = x * x + y * y;
     let nil = y.eq(zero) | r2.eq(zero);
     let keep = nil & zero.le(x);
@@ -202,7 +198,7 @@ where
 /// Givens QR of each lane's `B = F·V`: returns `(Q, R)`, `R`'s diagonal holding σ.
 #[inline(always)]
 fn qr<V: Vector>(mut b: Rows<V>) -> (Rows<V>, Rows<V>) {
-    let (one, zero) = (splat::<V>(V::Scalar::ONE), splat::<V>(V::Scalar::ZERO));
+    let (one, zero) = (V::splat(V::Scalar::ONE), V::splat(V::Scalar::ZERO));
     let mut q = [[one, zero, zero], [zero, one, zero], [zero, zero, one]];
     givens_lanes(&mut b, &mut q, 0, 1);
     givens_lanes(&mut b, &mut q, 0, 2);
@@ -260,7 +256,7 @@ fn dot<V: Vector>(x: &Col<V>, y: &Col<V>) -> V {
 
 #[inline(always)]
 fn unit<V: Vector>(x: Col<V>) -> Col<V> {
-    let k = splat::<V>(V::Scalar::ONE) / dot(&x, &x).sqrt();
+    let k = V::splat(V::Scalar::ONE) / dot(&x, &x).sqrt();
     [x[0] * k, x[1] * k, x[2] * k]
 }
 
@@ -298,9 +294,9 @@ fn unpack<V: Vector>(m: &Rows<V>) -> [[[V::Scalar; 3]; 3]; MAX_LANES] {
 
 /// [`svd3_warm`] of [`LANES`] matrices at once, lane `l` from `f[l]` and `v0[l]`. Bitwise equal
 /// to calling `svd3_warm` on each. The forward SVD stage runs on this: on `sand_box` (2 threads,
-/// AVX2) the stage took 1.48 s instead of 3.27 s one matrix at a time, since the latency of the
-/// rotations' square roots and divisions overlaps across lanes
-/// (`powderlab bench scenes/sand_box.ron --stages`).
+/// AVX2) the stage takes 0.90 s (`powderlab bench scenes/sand_box.ron --stages`), against 3.27 s
+/// one matrix at a time, since the latency of the rotations' square roots and divisions overlaps
+/// across lanes.
 pub fn svd3_warm_lanes(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
