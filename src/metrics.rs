@@ -3,7 +3,7 @@
 use crate::components::*;
 use crate::math::geometry::CupRegion;
 use crate::math::return_map::{hencky, hencky_energy};
-use crate::math::svd::{svd3_warm_group, LANES};
+use crate::math::svd::{svd3_warm_group, svd3_warm_lanes, LANES};
 use bevy_ecs::prelude::*;
 use glam::DMat3;
 
@@ -83,9 +83,14 @@ pub fn frame_metrics(world: &mut World, target: Option<&str>) -> FrameMetrics {
 fn elastic_energy_sum(fs: &[DMat3], mu: f64, lambda: f64) -> f64 {
     let mut sum = 0.0;
     for group in fs.chunks(LANES) {
-        svd3_warm_group(group, &[DMat3::IDENTITY; LANES][..group.len()], |_, d| {
-            sum += hencky_energy(hencky(d.s), mu, lambda);
-        });
+        svd3_warm_group(
+            svd3_warm_lanes,
+            group,
+            &[DMat3::IDENTITY; LANES][..group.len()],
+            |_, d| {
+                sum += hencky_energy(hencky(d.s), mu, lambda);
+            },
+        );
     }
     sum
 }

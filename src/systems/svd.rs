@@ -2,17 +2,15 @@
 //!
 //! The Jacobi iteration starts from the particle's `V` of the previous substep (`F` changes by
 //! `Δt·C·F` per substep), which saves most sweeps; the decomposition does not depend on it.
-//! Particles go through in groups of `LANES` (`svd3_warm_group`: the lane kernel, bitwise equal
-//! to one at a time; the last short group one at a time).
-//!
-//! A scene with `simulation.svd: F32` decomposes in f32, `LANES_F32` particles a group
-//! (`svd3_warm_group_f32`); each particle's factors depend on its own `F_tmp` and `V` only, so
+//! Particles go through in groups of `LANES` (`svd3_warm_lanes`, bitwise equal to one at a
+//! time), or of `LANES_F32` in f32 where the scene asks for it (`simulation.svd: F32`,
+//! `svd3_warm_lanes_f32`); each particle's factors depend on its own `F_tmp` and `V` only, so
 //! the grouping, and the thread count, change no bit.
 //!
 //! Reads `TrialDeformation`, `SimParams`; writes `SvdFactors`.
 
 use crate::components::{Precision, SimParams, SvdFactors, TrialDeformation};
-use crate::math::svd::{svd3_warm_group, svd3_warm_group_f32, Svd3, LANES, LANES_F32};
+use crate::math::svd::{svd3_warm_group, svd3_warm_lanes, svd3_warm_lanes_f32, Kernel};
 use bevy_ecs::prelude::*;
 use glam::DMat3;
 use rayon::prelude::*;
@@ -20,20 +18,14 @@ use rayon::prelude::*;
 pub fn svd(params: Res<SimParams>, mut bodies: Query<(&TrialDeformation, &mut SvdFactors)>) {
     for (ft, mut f) in &mut bodies {
         match params.svd {
-            Precision::F64 => decompose::<LANES>(&ft.0, &mut f, |f, v, o| svd3_warm_group(f, v, o)),
-            Precision::F32 => {
-                decompose::<LANES_F32>(&ft.0, &mut f, |f, v, o| svd3_warm_group_f32(f, v, o))
-            }
+            Precision::F64 => decompose(&ft.0, &mut f, svd3_warm_lanes),
+            Precision::F32 => decompose(&ft.0, &mut f, svd3_warm_lanes_f32),
         }
     }
 }
 
-/// Decomposes `ft` in groups of `N` through `group` (a lane kernel's group function).
-fn decompose<const N: usize>(
-    ft: &[DMat3],
-    f: &mut SvdFactors,
-    group: impl Fn(&[DMat3], &[DMat3], &mut dyn FnMut(usize, Svd3)) + Sync,
-) {
+/// Decomposes `ft` in groups of `N` through `kernel`.
+fn decompose<const N: usize>(ft: &[DMat3], f: &mut SvdFactors, kernel: Kernel<N>) {
     ft.par_chunks(N)
         .zip(f.u.par_chunks_mut(N))
         .zip(f.s.par_chunks_mut(N).zip(f.v.par_chunks_mut(N)))
@@ -41,7 +33,7 @@ fn decompose<const N: usize>(
             // The warm starts are read before the group's results overwrite them.
             let mut v0 = [DMat3::IDENTITY; N];
             v0[..v.len()].copy_from_slice(v);
-            group(ft, &v0[..v.len()], &mut |l, d| {
+            svd3_warm_group(kernel, ft, &v0[..v.len()], |l, d| {
                 (u[l], s[l], v[l]) = (d.u, d.s, d.v);
             });
         });

@@ -306,25 +306,26 @@ pub fn svd3_warm_lanes(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES]
     svd3_warm_lanes_body::<Arr<f64, LANES>>(f, v0)
 }
 
-/// [`svd3_warm`] of each of up to [`LANES`] matrices, `f[i]` warm-started from `v0[i]`, handed to
-/// `out(i, svd)`: a full group goes through [`svd3_warm_lanes`], a shorter one (the end of a
-/// particle array) one matrix at a time; the results are bitwise the same either way.
+/// A lane kernel ([`svd3_warm_lanes`] or [`svd3_warm_lanes_f32`]).
+pub type Kernel<const N: usize> = fn(&[DMat3; N], &[DMat3; N]) -> [Svd3; N];
+
+/// `kernel` on up to `N` matrices, `f[i]` warm-started from `v0[i]`, each result handed to
+/// `out(i, svd)`. A shorter group (the end of a particle array) is padded with identities whose
+/// lanes are dropped: a lane's result does not depend on its neighbours, so the padding changes
+/// no bit (in f64 the results are [`svd3_warm`]'s on each matrix).
 #[inline(always)]
-pub fn svd3_warm_group(f: &[DMat3], v0: &[DMat3], mut out: impl FnMut(usize, Svd3)) {
-    match (
-        <&[DMat3; LANES]>::try_from(f),
-        <&[DMat3; LANES]>::try_from(v0),
-    ) {
-        (Ok(f), Ok(v0)) => {
-            for (l, d) in svd3_warm_lanes(f, v0).into_iter().enumerate() {
-                out(l, d);
-            }
-        }
-        _ => {
-            for (i, (&f, &v0)) in f.iter().zip(v0).enumerate() {
-                out(i, super::svd3_warm(f, v0));
-            }
-        }
+pub fn svd3_warm_group<const N: usize>(
+    kernel: Kernel<N>,
+    f: &[DMat3],
+    v0: &[DMat3],
+    mut out: impl FnMut(usize, Svd3),
+) {
+    let mut fl = [DMat3::IDENTITY; N];
+    let mut vl = [DMat3::IDENTITY; N];
+    fl[..f.len()].copy_from_slice(f);
+    vl[..v0.len()].copy_from_slice(v0);
+    for (l, d) in kernel(&fl, &vl).into_iter().take(f.len()).enumerate() {
+        out(l, d);
     }
 }
 
@@ -410,21 +411,4 @@ fn narrow(m: DMat3) -> [[f32; 3]; 3] {
 #[inline(always)]
 fn widen(m: [[f32; 3]; 3]) -> DMat3 {
     from_rows(m.map(|row| row.map(f64::from)))
-}
-
-/// [`svd3_warm_lanes_f32`] of up to [`LANES_F32`] matrices, handed to `out(i, svd)`: a shorter
-/// group (the end of a particle array) is padded with identities, whose lanes are dropped.
-#[inline(always)]
-pub fn svd3_warm_group_f32(f: &[DMat3], v0: &[DMat3], mut out: impl FnMut(usize, Svd3)) {
-    let mut fl = [DMat3::IDENTITY; LANES_F32];
-    let mut vl = [DMat3::IDENTITY; LANES_F32];
-    fl[..f.len()].copy_from_slice(f);
-    vl[..v0.len()].copy_from_slice(v0);
-    for (l, d) in svd3_warm_lanes_f32(&fl, &vl)
-        .into_iter()
-        .take(f.len())
-        .enumerate()
-    {
-        out(l, d);
-    }
 }

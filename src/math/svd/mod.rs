@@ -219,8 +219,7 @@ fn s_adj_diag(g_s: DVec3, i: usize) -> f64 {
 
 mod lanes;
 pub use lanes::{
-    svd3_warm_group, svd3_warm_group_f32, svd3_warm_lanes, svd3_warm_lanes_f32, SvdReal, LANES,
-    LANES_F32,
+    svd3_warm_group, svd3_warm_lanes, svd3_warm_lanes_f32, Kernel, SvdReal, LANES, LANES_F32,
 };
 
 #[cfg(test)]

@@ -409,3 +409,40 @@ fn f32_lanes_decompose_to_f32_precision() {
         }
     }
 }
+
+/// A short group (the end of a particle array) is padded with identities: each of its
+/// matrices gets `svd3_warm`'s bits, in f64, and the f32 kernel's own bits.
+#[test]
+fn short_groups_give_each_matrix_its_own_decomposition() {
+    let mut s = 31;
+    for len in 1..LANES_F32 {
+        let f: Vec<DMat3> = (0..len)
+            .map(|_| {
+                DMat3::IDENTITY
+                    + 0.2 * DMat3::from_cols_array(&std::array::from_fn(|_| lcg(&mut s)))
+            })
+            .collect();
+        let v0: Vec<DMat3> = f
+            .iter()
+            .map(|m| svd3(*m + 0.01 * DMat3::IDENTITY).v)
+            .collect();
+        if len < LANES {
+            svd3_warm_group(svd3_warm_lanes, &f, &v0, |i, d| {
+                assert_eq!(
+                    bits(&d),
+                    bits(&svd3_warm(f[i], v0[i])),
+                    "f64, {len} matrices"
+                );
+            });
+        }
+        let mut full: [DMat3; LANES_F32] =
+            std::array::from_fn(|l| DMat3::from_diagonal(DVec3::splat(1.0 + l as f64)));
+        let mut full_v0 = [DMat3::IDENTITY; LANES_F32];
+        full[..len].copy_from_slice(&f);
+        full_v0[..len].copy_from_slice(&v0);
+        let alone = svd3_warm_lanes_f32(&full, &full_v0);
+        svd3_warm_group(svd3_warm_lanes_f32, &f, &v0, |i, d| {
+            assert_eq!(bits(&d), bits(&alone[i]), "f32, {len} matrices");
+        });
+    }
+}
