@@ -31,6 +31,19 @@ fn coarse() -> Scene {
     s
 }
 
+/// `powderlab repose --json` on one seed and 2 threads of the scene at `path`, with `args`;
+/// asserts it succeeds.
+fn repose_json(path: &std::path::Path, args: &[&str]) -> serde_json::Value {
+    let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
+        .args(["repose", "--json", "--seeds", "1", "--threads", "2"])
+        .arg(path)
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    serde_json::from_slice(&o.stdout).unwrap()
+}
+
 fn write(scene: &Scene, dir: &std::path::Path) -> std::path::PathBuf {
     let p = dir.join("repose_coarse.ron");
     std::fs::write(&p, ron::ser::to_string(scene).unwrap()).unwrap();
@@ -42,16 +55,8 @@ fn cohesion_steepens_a_heap_that_without_it_stands_at_its_friction_angle() {
     let dir = std::env::temp_dir().join(format!("powderlab-repose-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = write(&coarse(), &dir);
-    let angle = |set: &[&str]| {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_powderlab"));
-        cmd.args(["repose", "--json", "--seeds", "1", "--threads", "2"])
-            .arg(&path);
-        for s in set {
-            cmd.args(["--set", s]);
-        }
-        let o = cmd.output().unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let angle = |args: &[&str]| {
+        let v = repose_json(&path, args);
         let h = &v["heaps"][0];
         assert_eq!(h["at_rest"], true, "{v}");
         assert_eq!(h["flanks_deg"].as_array().unwrap().len(), 8, "{v}");
@@ -65,7 +70,7 @@ fn cohesion_steepens_a_heap_that_without_it_stands_at_its_friction_angle() {
         dry <= phi + STATIC_LIMIT_TOL_DEG && dry > 0.5 * phi,
         "a cohesionless heap at {dry:.1}° for φ = {phi}°"
     );
-    let (wet, _) = angle(&["cohesion=5"]);
+    let (wet, _) = angle(&["--set", "cohesion=5"]);
     assert!(
         wet >= dry + COHESION_STEEPENS_DEG,
         "c = 5 Pa: {wet:.1}° against {dry:.1}° without cohesion"
@@ -124,16 +129,7 @@ fn a_fit_to_a_heaps_own_angle_gives_its_cohesion_back() {
     let dir = std::env::temp_dir().join(format!("powderlab-repose-fit-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = write(&coarse(), &dir);
-    let run = |args: &[&str]| {
-        let o = Command::new(env!("CARGO_BIN_EXE_powderlab"))
-            .args(["repose", "--json", "--seeds", "1", "--threads", "2"])
-            .arg(&path)
-            .args(args)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        serde_json::from_slice::<serde_json::Value>(&o.stdout).unwrap()
-    };
+    let run = |args: &[&str]| repose_json(&path, args);
     let truth = 3.0;
     let angle = run(&["--set", "cohesion=3"])["angle_deg"].as_f64().unwrap();
     let target = format!("{angle}");
