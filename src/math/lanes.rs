@@ -217,6 +217,20 @@ mod avx {
     use std::arch::x86_64::*;
     use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
+    /// `impl $tr for $t` by the two-register intrinsic `$intr` (its `unsafe`: as below, the
+    /// intrinsic needs AVX, which the functions these types run in have).
+    macro_rules! avx_op {
+        ($t:ident, $tr:ident, $f:ident, $intr:ident) => {
+            impl $tr for $t {
+                type Output = Self;
+                #[inline(always)]
+                fn $f(self, o: Self) -> Self {
+                    $t(unsafe { $intr(self.0, o.0) })
+                }
+            }
+        };
+    }
+
     macro_rules! avx_vector {
         ($v:ident, $m:ident, $reg:ty, $t:ty, $n:expr, $sfx:ident,
          $set1:ident, $loadu:ident, $storeu:ident, $add:ident, $sub:ident, $mul:ident,
@@ -232,20 +246,8 @@ mod avx {
 
             // SAFETY (every `unsafe` below): the intrinsics need AVX, which the functions these
             // types run in are compiled for and called only after detecting (module docs).
-            impl BitAnd for $m {
-                type Output = Self;
-                #[inline(always)]
-                fn bitand(self, o: Self) -> Self {
-                    $m(unsafe { $and(self.0, o.0) })
-                }
-            }
-            impl BitOr for $m {
-                type Output = Self;
-                #[inline(always)]
-                fn bitor(self, o: Self) -> Self {
-                    $m(unsafe { $or(self.0, o.0) })
-                }
-            }
+            avx_op!($m, BitAnd, bitand, $and);
+            avx_op!($m, BitOr, bitor, $or);
             impl Not for $m {
                 type Output = Self;
                 #[inline(always)]
@@ -272,34 +274,10 @@ mod avx {
                     unsafe { $movemask(self.0) == $full }
                 }
             }
-            impl Add for $v {
-                type Output = Self;
-                #[inline(always)]
-                fn add(self, o: Self) -> Self {
-                    $v(unsafe { $add(self.0, o.0) })
-                }
-            }
-            impl Sub for $v {
-                type Output = Self;
-                #[inline(always)]
-                fn sub(self, o: Self) -> Self {
-                    $v(unsafe { $sub(self.0, o.0) })
-                }
-            }
-            impl Mul for $v {
-                type Output = Self;
-                #[inline(always)]
-                fn mul(self, o: Self) -> Self {
-                    $v(unsafe { $mul(self.0, o.0) })
-                }
-            }
-            impl Div for $v {
-                type Output = Self;
-                #[inline(always)]
-                fn div(self, o: Self) -> Self {
-                    $v(unsafe { $div(self.0, o.0) })
-                }
-            }
+            avx_op!($v, Add, add, $add);
+            avx_op!($v, Sub, sub, $sub);
+            avx_op!($v, Mul, mul, $mul);
+            avx_op!($v, Div, div, $div);
             impl Neg for $v {
                 type Output = Self;
                 /// Flips the sign bit, as Rust's `-x` does.
