@@ -43,7 +43,12 @@ fn skill_and_material_gradients_through_the_spoon() {
             .any(|u| u.iter().any(|x| x.abs() > 0.0)),
         "no gradient reaches the spoon"
     );
-    let eps = 1e-7;
+    // The loss (a sum over a few hundred particles) carries about 2.5e-14 of round-off, which
+    // a step of 1e-7 turns into 2.5e-7 of the difference, 3e-4 of dL/dtheta[1]: its central
+    // differences at 1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 1e-8 were −9.10788, −9.10785, −9.10743,
+    // −9.10756, −9.11031, −9.08518 (·1e-4) against the adjoint's −9.10780. 3e-6 keeps both
+    // truncation and round-off near 1e-5 of it.
+    let eps = 3e-6;
     for k in 0..2 {
         let edit = |d: f64| {
             let mut s = scene.clone();

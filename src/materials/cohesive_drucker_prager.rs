@@ -17,7 +17,7 @@ use crate::error::FieldError;
 use crate::math::return_map::{
     cohesion_trace, cohesion_trace_adj, dp_alpha, dp_alpha_adj, dp_project_cohesive,
     dp_project_cohesive_adj, hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj,
-    lame,
+    lame, stretch,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -92,7 +92,7 @@ impl CohesiveDruckerPrager {
         Projected {
             eps,
             eps_new,
-            sigma_new: DVec3::new(eps_new.x.exp(), eps_new.y.exp(), eps_new.z.exp()),
+            sigma_new: stretch(eps_new),
             tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
         }
     }

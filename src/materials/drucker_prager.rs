@@ -6,9 +6,10 @@ use super::{
     POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
+use crate::math::return_map::lanes::{dp_update_group, LANES};
 use crate::math::return_map::{
     dp_alpha, dp_alpha_adj, dp_project, dp_project_adj, hardened_friction_deg, hencky, hencky_adj,
-    kirchhoff_principal, kirchhoff_principal_adj, lame,
+    kirchhoff_principal, kirchhoff_principal_adj, lame, stretch,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -73,7 +74,7 @@ fn project(c: &Cache, sigma: DVec3, alpha: f64) -> Projected {
         eps,
         eps_new,
         dq,
-        sigma_new: DVec3::new(eps_new.x.exp(), eps_new.y.exp(), eps_new.z.exp()),
+        sigma_new: stretch(eps_new),
         tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
     }
 }
@@ -191,6 +192,43 @@ impl Material for DruckerPrager {
         *q += p.dq;
         *saved = [p.eps, p.eps_new, p.sigma_new];
         (Some(p.sigma_new), p.tau)
+    }
+
+    /// Four particles at a time in vector registers (`return_map::lanes`), each the scalar
+    /// update's result to the bit.
+    fn update_many(
+        &self,
+        sigma: &[DVec3],
+        q: &mut [f64],
+        mut saved: Option<&mut [Saved]>,
+        out: &mut [Updated],
+    ) {
+        let c = self.cache.as_ref().expect("prepared");
+        let n = sigma.len();
+        assert!(q.len() == n && out.len() == n, "update_many: one length");
+        for g in (0..n).step_by(LANES) {
+            let m = LANES.min(n - g);
+            // A short last group is padded with particles at rest; their lanes are dropped.
+            let mut s = [DVec3::ONE; LANES];
+            s[..m].copy_from_slice(&sigma[g..g + m]);
+            let alpha: [f64; LANES] = std::array::from_fn(|l| match self.hardening {
+                Some(h) if l < m => {
+                    dp_alpha(hardened_friction_deg(h.into(), q[g + l]).clamp(0.0, 89.0))
+                }
+                _ => c.alpha,
+            });
+            for (l, u) in dp_update_group(&s, &alpha, c.mu, c.lambda)
+                .iter()
+                .take(m)
+                .enumerate()
+            {
+                q[g + l] += u.dq;
+                if let Some(sv) = saved.as_deref_mut() {
+                    sv[g + l] = [u.eps, u.eps_new, u.sigma_new];
+                }
+                out[g + l] = (Some(u.sigma_new), u.tau);
+            }
+        }
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches (see

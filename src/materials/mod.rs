@@ -125,6 +125,30 @@ pub trait Material:
         let _ = saved;
         self.update(sigma, q)
     }
+    /// [`Material::update`] of each particle of a group (`sigma`, `q` and `out` of one length),
+    /// or [`Material::update_saving`] where `saved` is given: the same results, bit for bit, as
+    /// one particle at a time, which is what this default does. A material whose maths runs
+    /// several particles to a vector register overrides it.
+    fn update_many(
+        &self,
+        sigma: &[DVec3],
+        q: &mut [f64],
+        saved: Option<&mut [Saved]>,
+        out: &mut [Updated],
+    ) {
+        match saved {
+            Some(saved) => {
+                for (((s, q), sv), o) in sigma.iter().zip(q).zip(saved).zip(out) {
+                    *o = self.update_saving(*s, q, sv);
+                }
+            }
+            None => {
+                for ((s, q), o) in sigma.iter().zip(q).zip(out) {
+                    *o = self.update(*s, q);
+                }
+            }
+        }
+    }
     /// [`Material::update_adj`] at the `sigma` and `q` that [`Material::update_saving`] saw,
     /// from what it saved: the same result bit for bit, without recomputing the update.
     fn update_adj_saved(

@@ -91,6 +91,29 @@ pub trait Vector:
     fn select(m: Self::Mask, a: Self, b: Self) -> Self;
 }
 
+/// f64 lanes, with the two operations on their bits that `math::elementary`'s `ln` and `exp`
+/// need. Both are exact, so the portable and the AVX implementations agree to the bit.
+pub trait F64Bits: Vector<Scalar = f64> {
+    /// `2ᵏ` for lanes that hold `k + ROUND_MAGIC` (`1.5·2⁵²`, which makes the addition round
+    /// to an integer) with an integer `k` in `[−1022, 1023]`: the magic's bits plus `k`, plus
+    /// 1023, shifted into the exponent field.
+    fn pow2_of_rounded(self) -> Self;
+    /// The unbiased exponent `e` (as an f64) and the significand `m` in `[1, 2)` of positive
+    /// normal lanes, `x = m·2ᵉ`.
+    fn exponent_significand(self) -> (Self, Self);
+}
+
+/// The constant whose addition rounds an f64 below 2⁵¹ in magnitude to an integer (ties to
+/// even), leaving that integer in the low bits of the sum.
+pub const ROUND_MAGIC: f64 = 6755399441055744.0;
+
+/// An f64's exponent field, its significand field, and 1.0's bits.
+const EXP_FIELD: u64 = 0x7ff;
+const SIGNIFICAND: u64 = 0x000f_ffff_ffff_ffff;
+const ONE_BITS: u64 = 0x3ff0_0000_0000_0000;
+/// 2⁵²'s bits: a small integer or'ed into them reads back as `2⁵² + n`.
+const TWO52_BITS: u64 = 0x4330_0000_0000_0000;
+
 /// The portable vector: an array, each operation a loop the compiler may vectorise.
 #[derive(Clone, Copy, Debug)]
 pub struct Arr<T, const N: usize>(pub [T; N]);
@@ -204,6 +227,26 @@ impl<T: Real, const N: usize> Vector for Arr<T, N> {
         Arr(std::array::from_fn(
             |l| if m.0[l] { a.0[l] } else { b.0[l] },
         ))
+    }
+}
+
+impl<const N: usize> F64Bits for Arr<f64, N> {
+    #[inline(always)]
+    fn pow2_of_rounded(self) -> Self {
+        Arr(self
+            .0
+            .map(|t| f64::from_bits(t.to_bits().wrapping_add(1023) << 52)))
+    }
+    #[inline(always)]
+    fn exponent_significand(self) -> (Self, Self) {
+        let e = self.0.map(|x| {
+            let field = (x.to_bits() >> 52) & EXP_FIELD;
+            (f64::from_bits(field | TWO52_BITS) - f64::from_bits(TWO52_BITS)) - 1023.0
+        });
+        let m = self
+            .0
+            .map(|x| f64::from_bits((x.to_bits() & SIGNIFICAND) | ONE_BITS));
+        (Arr(e), Arr(m))
     }
 }
 
@@ -364,6 +407,39 @@ mod avx {
         _mm256_movemask_pd,
         0xF
     );
+    impl super::F64Bits for F64x4 {
+        // SAFETY (both): AVX2's integer intrinsics, in functions compiled for AVX2 (above).
+        #[inline(always)]
+        fn pow2_of_rounded(self) -> Self {
+            unsafe {
+                let b = _mm256_add_epi64(_mm256_castpd_si256(self.0), _mm256_set1_epi64x(1023));
+                F64x4(_mm256_castsi256_pd(_mm256_slli_epi64::<52>(b)))
+            }
+        }
+        #[inline(always)]
+        fn exponent_significand(self) -> (Self, Self) {
+            use super::{EXP_FIELD, ONE_BITS, SIGNIFICAND, TWO52_BITS};
+            unsafe {
+                let b = _mm256_castpd_si256(self.0);
+                let two52 = _mm256_set1_epi64x(TWO52_BITS as i64);
+                let field = _mm256_and_si256(
+                    _mm256_srli_epi64::<52>(b),
+                    _mm256_set1_epi64x(EXP_FIELD as i64),
+                );
+                let biased = _mm256_sub_pd(
+                    _mm256_castsi256_pd(_mm256_or_si256(field, two52)),
+                    _mm256_castsi256_pd(two52),
+                );
+                let e = _mm256_sub_pd(biased, _mm256_set1_pd(1023.0));
+                let m = _mm256_or_si256(
+                    _mm256_and_si256(b, _mm256_set1_epi64x(SIGNIFICAND as i64)),
+                    _mm256_set1_epi64x(ONE_BITS as i64),
+                );
+                (F64x4(e), F64x4(_mm256_castsi256_pd(m)))
+            }
+        }
+    }
+
     avx_vector!(
         F32x8,
         M32x8,

@@ -7,6 +7,7 @@
 pub mod chamfer;
 pub mod contact;
 pub mod eigen;
+pub mod elementary;
 pub mod geometry;
 pub mod heightfield;
 pub mod kernel;

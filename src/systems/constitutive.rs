@@ -33,6 +33,9 @@ pub fn p2g_affine(u: DMat3, tau_p: DVec3, c: DMat3, coef: f64, mass: f64) -> DMa
     compose(u, tau_p, u) * coef + c * mass
 }
 
+/// Particles one task of the stage updates (a multiple of the materials' lane widths).
+const CHUNK: usize = 64;
+
 #[allow(clippy::type_complexity)]
 pub fn constitutive_model<M: Material>(
     params: Res<SimParams>,
@@ -55,25 +58,31 @@ pub fn constitutive_model<M: Material>(
         let coef = stress_coef(dt, body.particle_volume, grid.dx);
         let mass = body.particle_mass;
         let watch = FiniteWatch::default();
-        let update = |i: usize,
-                      q: &mut f64,
-                      saved: Option<(&mut crate::materials::Saved, &mut DVec3)>,
-                      f_out: &mut DMat3,
-                      a_out: &mut DMat3| {
-            let (s_new, tau_p) = match saved {
-                Some((sv, tau_out)) => {
-                    let r = mat.update_saving(svd.s[i], q, sv);
-                    *tau_out = r.1;
-                    r
+        // One chunk of particles: the material's update of them all (in vector registers where
+        // the material has them), then `F` and `A_p` of each.
+        let update = |k: usize,
+                      q: Option<&mut [f64]>,
+                      saved: Option<(&mut [crate::materials::Saved], &mut [DVec3])>,
+                      f_out: &mut [DMat3],
+                      a_out: &mut [DMat3]| {
+            let (i0, n) = (k * CHUNK, f_out.len());
+            let mut no_hardening = [0.0; CHUNK];
+            let q = q.unwrap_or(&mut no_hardening[..n]);
+            let mut updated = [(None, DVec3::ZERO); CHUNK];
+            let (sv, mut tau_out) = saved.unzip();
+            mat.update_many(&svd.s[i0..i0 + n], q, sv, &mut updated[..n]);
+            for (l, &(s_new, tau_p)) in updated[..n].iter().enumerate() {
+                let i = i0 + l;
+                if let Some(t) = tau_out.as_deref_mut() {
+                    t[l] = tau_p;
                 }
-                None => mat.update(svd.s[i], q),
-            };
-            *f_out = match s_new {
-                Some(s) => compose(svd.u[i], s, svd.v[i]),
-                None => ft.0[i],
-            };
-            *a_out = p2g_affine(svd.u[i], tau_p, c.0[i], coef, mass);
-            watch.check(f_out.is_finite() && a_out.is_finite());
+                f_out[l] = match s_new {
+                    Some(s) => compose(svd.u[i], s, svd.v[i]),
+                    None => ft.0[i],
+                };
+                a_out[l] = p2g_affine(svd.u[i], tau_p, c.0[i], coef, mass);
+                watch.check(f_out[l].is_finite() && a_out[l].is_finite());
+            }
         };
         if let Some((sv, st)) = &saved {
             // The zip below would silently skip particles past a short buffer.
@@ -84,21 +93,24 @@ pub fn constitutive_model<M: Material>(
                 "PrincipalStress sized for its body"
             );
         }
-        let fa = f.0.par_iter_mut().zip(aff.0.par_iter_mut()).enumerate();
+        let fa =
+            f.0.par_chunks_mut(CHUNK)
+                .zip(aff.0.par_chunks_mut(CHUNK))
+                .enumerate();
         match (hard, saved) {
             (Some(mut h), Some((mut sv, mut st))) => fa
                 .zip(
-                    h.0.par_iter_mut()
-                        .zip(sv.0.par_iter_mut().zip(st.0.par_iter_mut())),
+                    h.0.par_chunks_mut(CHUNK)
+                        .zip(sv.0.par_chunks_mut(CHUNK).zip(st.0.par_chunks_mut(CHUNK))),
                 )
-                .for_each(|((i, (fo, ao)), (q, (s, t)))| update(i, q, Some((s, t)), fo, ao)),
+                .for_each(|((k, (fo, ao)), (q, (s, t)))| update(k, Some(q), Some((s, t)), fo, ao)),
             (Some(mut h), None) => fa
-                .zip(h.0.par_iter_mut())
-                .for_each(|((i, (fo, ao)), q)| update(i, q, None, fo, ao)),
+                .zip(h.0.par_chunks_mut(CHUNK))
+                .for_each(|((k, (fo, ao)), q)| update(k, Some(q), None, fo, ao)),
             (None, Some((mut sv, mut st))) => fa
-                .zip(sv.0.par_iter_mut().zip(st.0.par_iter_mut()))
-                .for_each(|((i, (fo, ao)), (s, t))| update(i, &mut 0.0, Some((s, t)), fo, ao)),
-            (None, None) => fa.for_each(|(i, (fo, ao))| update(i, &mut 0.0, None, fo, ao)),
+                .zip(sv.0.par_chunks_mut(CHUNK).zip(st.0.par_chunks_mut(CHUNK)))
+                .for_each(|((k, (fo, ao)), (s, t))| update(k, None, Some((s, t)), fo, ao)),
+            (None, None) => fa.for_each(|(k, (fo, ao))| update(k, None, None, fo, ao)),
         }
         for (field, idx) in [
             ("F", watch.first_nonfinite_mat(&f.0)),

@@ -11,7 +11,10 @@
 //! Guards (as in the Taichi reference): `σ` is clamped below at [`SIGMA_MIN`] before the log and
 //! `‖ε̂‖` at `√`[`DEV_NORM_SQ_MIN`], so `F = I` and inverted elements give finite values.
 
+use crate::math::elementary::{exp, ln};
 use glam::DVec3;
+
+pub mod lanes;
 
 /// Lower clamp on singular values before `ln`: an inverted or crushed element is treated as
 /// compressed to 1e-6 of its volume along that axis instead of producing `ln(≤0)`.
@@ -37,11 +40,18 @@ pub fn hardened_friction_deg(h: [f64; 4], q: f64) -> f64 {
     h[0] + (h[1] * q - h[3]) * (-h[2] * q).exp()
 }
 
-/// Hencky strain of singular values, with the [`SIGMA_MIN`] guard.
+/// Hencky strain of singular values, with the [`SIGMA_MIN`] guard (`ln` is
+/// [`crate::math::elementary::ln`], so that [`lanes`] gives these bits four particles at once).
 #[inline(always)]
 pub fn hencky(sigma: DVec3) -> DVec3 {
     let s = sigma.max(DVec3::splat(SIGMA_MIN));
-    DVec3::new(s.x.ln(), s.y.ln(), s.z.ln())
+    DVec3::new(ln(s.x), ln(s.y), ln(s.z))
+}
+
+/// The singular values `exp ε′` of a projected Hencky strain ([`crate::math::elementary::exp`]).
+#[inline(always)]
+pub fn stretch(eps: DVec3) -> DVec3 {
+    DVec3::new(exp(eps.x), exp(eps.y), exp(eps.z))
 }
 
 /// Principal Kirchhoff stresses of StVK in Hencky strain: `2μ·ε + λ·tr ε`.
