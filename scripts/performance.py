@@ -30,6 +30,8 @@ LEVERS = [
     ("small-angle Jacobi rotations in the SVD", "e34eb12", "683a78f", "forward"),
     ("SVD lanes in AVX registers", "89c60e3", "190be08", "forward"),
     ("SVD lanes in AVX registers", "89c60e3", "190be08", "backward"),
+    ("return mapping in AVX registers, with fdlibm's ln and exp", "f087036", "5ea09d7", "forward"),
+    ("return mapping in AVX registers, with fdlibm's ln and exp", "f087036", "5ea09d7", "backward"),
 ]
 BEFORE = "5b8b95d"  # the build before this page's levers
 
@@ -181,7 +183,9 @@ def main():
                              "with_rate": on["particle_substeps_per_s_forward_backward"],
                              "without_rate": off["particle_substeps_per_s_forward_backward"],
                              "same_gradient": on["grad_v0_sum"] == off["grad_v0_sum"]
-                             and on["grad_tool_velocity"] == off["grad_tool_velocity"]})
+                             and on["grad_tool_velocity"] == off["grad_tool_velocity"],
+                             "grad_with": on["grad_tool_velocity"],
+                             "grad_without": off["grad_tool_velocity"]})
         lev[name + (" (forward + backward)" if kind == "backward" else "")] = rows
     # All of this page's levers together, against the build before them.
     rows = []
