@@ -9,6 +9,7 @@
 //! none). A separate, lower cut-off would be a second parameter no test a laboratory runs on a
 //! powder (an angle of repose, a shear cell) identifies.
 
+use super::drucker_prager::{update_many_lanes, Cone};
 use super::{
     check_elastic, check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated,
     POISSON_RATIO, YOUNGS_MODULUS,
@@ -212,6 +213,25 @@ impl Material for CohesiveDruckerPrager {
         let p = self.project(sigma);
         *saved = [p.eps, p.eps_new, p.sigma_new];
         (Some(p.sigma_new), p.tau)
+    }
+
+    /// Four particles at a time in vector registers (`return_map::lanes`), each the scalar
+    /// update's result to the bit.
+    fn update_many(
+        &self,
+        sigma: &[DVec3],
+        q: &mut [f64],
+        saved: Option<&mut [Saved]>,
+        out: &mut [Updated],
+    ) {
+        let c = self.cache();
+        let cone = Cone {
+            mu: c.mu,
+            lambda: c.lambda,
+            tr_c: c.tr_c,
+            hardens: false,
+        };
+        update_many_lanes(sigma, q, saved, out, cone, |_| c.alpha);
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches.

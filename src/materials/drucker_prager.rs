@@ -79,6 +79,49 @@ fn project(c: &Cache, sigma: DVec3, alpha: f64) -> Projected {
     }
 }
 
+/// What [`update_many_lanes`] needs of a Drucker–Prager cone besides `α`.
+pub(super) struct Cone {
+    pub mu: f64,
+    pub lambda: f64,
+    /// The apex's strain trace (`return_map::cohesion_trace`; 0 without cohesion).
+    pub tr_c: f64,
+    /// Whether the update adds `δq` to the hardening variable, as
+    /// `DruckerPrager::update` does (the cohesive material keeps none).
+    pub hardens: bool,
+}
+
+/// [`Material::update_many`] of the Drucker–Prager materials: `return_map::lanes` on groups of
+/// four, `alpha_at(q)` each particle's cone coefficient at its hardening variable, saving
+/// `[ε, ε′, exp ε′]` where asked.
+pub(super) fn update_many_lanes(
+    sigma: &[DVec3],
+    q: &mut [f64],
+    mut saved: Option<&mut [Saved]>,
+    out: &mut [Updated],
+    cone: Cone,
+    alpha_at: impl Fn(f64) -> f64,
+) {
+    let n = sigma.len();
+    assert!(q.len() == n && out.len() == n, "update_many: one length");
+    for g in (0..n).step_by(LANES) {
+        let m = LANES.min(n - g);
+        // A short last group is padded with particles at rest; their lanes are dropped.
+        let mut s = [DVec3::ONE; LANES];
+        s[..m].copy_from_slice(&sigma[g..g + m]);
+        let alpha: [f64; LANES] = std::array::from_fn(|l| alpha_at(q[g + l.min(m - 1)]));
+        let updates = dp_update_group(&s, &alpha, cone.mu, cone.lambda, cone.tr_c);
+        for (l, u) in updates.iter().take(m).enumerate() {
+            if cone.hardens {
+                q[g + l] += u.dq;
+            }
+            if let Some(sv) = saved.as_deref_mut() {
+                sv[g + l] = [u.eps, u.eps_new, u.sigma_new];
+            }
+            out[g + l] = (Some(u.sigma_new), u.tau);
+        }
+    }
+}
+
 pub(super) fn default_density() -> f64 {
     1500.0
 }
@@ -200,35 +243,21 @@ impl Material for DruckerPrager {
         &self,
         sigma: &[DVec3],
         q: &mut [f64],
-        mut saved: Option<&mut [Saved]>,
+        saved: Option<&mut [Saved]>,
         out: &mut [Updated],
     ) {
         let c = self.cache.as_ref().expect("prepared");
-        let n = sigma.len();
-        assert!(q.len() == n && out.len() == n, "update_many: one length");
-        for g in (0..n).step_by(LANES) {
-            let m = LANES.min(n - g);
-            // A short last group is padded with particles at rest; their lanes are dropped.
-            let mut s = [DVec3::ONE; LANES];
-            s[..m].copy_from_slice(&sigma[g..g + m]);
-            let alpha: [f64; LANES] = std::array::from_fn(|l| match self.hardening {
-                Some(h) if l < m => {
-                    dp_alpha(hardened_friction_deg(h.into(), q[g + l]).clamp(0.0, 89.0))
-                }
-                _ => c.alpha,
-            });
-            for (l, u) in dp_update_group(&s, &alpha, c.mu, c.lambda)
-                .iter()
-                .take(m)
-                .enumerate()
-            {
-                q[g + l] += u.dq;
-                if let Some(sv) = saved.as_deref_mut() {
-                    sv[g + l] = [u.eps, u.eps_new, u.sigma_new];
-                }
-                out[g + l] = (Some(u.sigma_new), u.tau);
-            }
-        }
+        let alpha_at = |q: f64| match self.hardening {
+            None => c.alpha,
+            Some(h) => dp_alpha(hardened_friction_deg(h.into(), q).clamp(0.0, 89.0)),
+        };
+        let cone = Cone {
+            mu: c.mu,
+            lambda: c.lambda,
+            tr_c: 0.0,
+            hardens: true,
+        };
+        update_many_lanes(sigma, q, saved, out, cone, alpha_at);
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches (see

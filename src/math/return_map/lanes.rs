@@ -43,11 +43,18 @@ fn dot<V: Vector>(a: V3<V>, b: V3<V>) -> V {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-/// The update of each lane: `σ` (three vectors of lanes, by axis), the Lamé parameters and each
-/// lane's cone coefficient `α`. Loops, not closures: a closure that LLVM declines to inline is
-/// compiled without the caller's AVX, and its intrinsics become calls.
+/// The update of each lane: `σ` (three vectors of lanes, by axis), the Lamé parameters, each
+/// lane's cone coefficient `α`, and the cone's apex trace `tr_c` (0 for cohesionless powder:
+/// [`super::dp_project_cohesive`] at any other). Loops, not closures: a closure that LLVM
+/// declines to inline is compiled without the caller's AVX, and its intrinsics become calls.
 #[inline(always)]
-fn dp_update_body<V: F64Bits>(sigma: V3<V>, mu: f64, lambda: f64, alpha: V) -> [V3<V>; 5] {
+fn dp_update_body<V: F64Bits>(
+    sigma: V3<V>,
+    mu: f64,
+    lambda: f64,
+    alpha: V,
+    tr_c: f64,
+) -> [V3<V>; 5] {
     let zero = V::splat(0.0);
     // hencky: glam's max keeps the bound where σ is not above it (NaN included).
     let lo = V::splat(SIGMA_MIN);
@@ -55,13 +62,22 @@ fn dp_update_body<V: F64Bits>(sigma: V3<V>, mu: f64, lambda: f64, alpha: V) -> [
     for a in 0..3 {
         eps[a] = ln_lanes(V::select(lo.lt(sigma[a]), sigma[a], lo));
     }
-    // dp_project
-    let tr = sum(eps);
+    // dp_project_cohesive: the cohesionless projection of `ε − tr_c/3`, moved back (at
+    // `tr_c = 0`, dp_project itself: no shift at all, as in the scalar code).
+    let cohesive = tr_c != 0.0;
+    let shift = V::splat(tr_c / 3.0);
+    let mut e = eps;
+    if cohesive {
+        for a in 0..3 {
+            e[a] = eps[a] - shift;
+        }
+    }
+    let tr = sum(e);
     let tip = zero.le(tr);
     let third = tr / V::splat(3.0);
-    let mut dev = eps;
+    let mut dev = e;
     for a in 0..3 {
-        dev[a] = eps[a] - third;
+        dev[a] = e[a] - third;
     }
     let dn2 = dot(dev, dev);
     let floor = V::splat(DEV_NORM_SQ_MIN);
@@ -70,12 +86,15 @@ fn dp_update_body<V: F64Bits>(sigma: V3<V>, mu: f64, lambda: f64, alpha: V) -> [
     let dgamma = dev_norm + V::splat(k) * alpha * tr;
     let elastic = dgamma.le(zero);
     let scale = dgamma / dev_norm;
-    let mut eps_new = eps;
+    let mut eps_new = e;
     for a in 0..3 {
-        let yielded = eps[a] - dev[a] * scale;
-        eps_new[a] = V::select(tip, zero, V::select(elastic, eps[a], yielded));
+        let yielded = e[a] - dev[a] * scale;
+        eps_new[a] = V::select(tip, zero, V::select(elastic, e[a], yielded));
+        if cohesive {
+            eps_new[a] = eps_new[a] + shift;
+        }
     }
-    let dq = V::select(tip, dot(eps, eps).sqrt(), V::select(elastic, zero, dgamma));
+    let dq = V::select(tip, dot(e, e).sqrt(), V::select(elastic, zero, dgamma));
     // stretch and kirchhoff_principal
     let (two_mu, volumetric) = (V::splat(2.0 * mu), V::splat(lambda) * sum(eps_new));
     let (mut sigma_new, mut tau) = (eps_new, eps_new);
@@ -93,6 +112,7 @@ fn dp_update_packed<V: F64Bits>(
     alpha: &[f64; LANES],
     mu: f64,
     lambda: f64,
+    tr_c: f64,
 ) -> [DpUpdate; LANES] {
     let mut by_axis = [[0.0; LANES]; 3];
     for (l, s) in sigma.iter().enumerate() {
@@ -105,7 +125,7 @@ fn dp_update_packed<V: F64Bits>(
         V::load(&by_axis[1]),
         V::load(&by_axis[2]),
     ];
-    let r = dp_update_body(sv, mu, lambda, V::load(alpha));
+    let r = dp_update_body(sv, mu, lambda, V::load(alpha), tr_c);
     let mut out = [[[0.0; LANES]; 3]; 5];
     for q in 0..5 {
         for a in 0..3 {
@@ -122,21 +142,23 @@ fn dp_update_packed<V: F64Bits>(
     })
 }
 
-/// The Drucker–Prager update (`ε = ln σ`, the return mapping, `exp ε′`, `τ_p`) of `LANES`
-/// particles, lane `l` at `sigma[l]` with cone coefficient `alpha[l]`: each the scalar
-/// functions' result to the bit, in AVX registers where the CPU has AVX2.
+/// The Drucker–Prager update (`ε = ln σ`, the return mapping of the cone with apex trace
+/// `tr_c`, `exp ε′`, `τ_p`) of `LANES` particles, lane `l` at `sigma[l]` with cone coefficient
+/// `alpha[l]`: each the scalar functions' result to the bit, in AVX registers where the CPU has
+/// AVX2.
 pub fn dp_update_group(
     sigma: &[DVec3; LANES],
     alpha: &[f64; LANES],
     mu: f64,
     lambda: f64,
+    tr_c: f64,
 ) -> [DpUpdate; LANES] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, which is all the function's target features ask for.
-        return unsafe { dp_update_avx2(sigma, alpha, mu, lambda) };
+        return unsafe { dp_update_avx2(sigma, alpha, mu, lambda, tr_c) };
     }
-    dp_update_packed::<Arr<f64, LANES>>(sigma, alpha, mu, lambda)
+    dp_update_packed::<Arr<f64, LANES>>(sigma, alpha, mu, lambda, tr_c)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -146,18 +168,21 @@ fn dp_update_avx2(
     alpha: &[f64; LANES],
     mu: f64,
     lambda: f64,
+    tr_c: f64,
 ) -> [DpUpdate; LANES] {
-    dp_update_packed::<crate::math::lanes::F64x4>(sigma, alpha, mu, lambda)
+    dp_update_packed::<crate::math::lanes::F64x4>(sigma, alpha, mu, lambda, tr_c)
 }
 
 #[cfg(test)]
 mod tests {
-    use super::super::{dp_alpha, dp_project, hencky, kirchhoff_principal, lame, stretch};
+    use super::super::{
+        cohesion_trace, dp_alpha, dp_project_cohesive, hencky, kirchhoff_principal, lame, stretch,
+    };
     use super::*;
 
-    fn scalar(sigma: DVec3, mu: f64, lambda: f64, alpha: f64) -> DpUpdate {
+    fn scalar(sigma: DVec3, mu: f64, lambda: f64, alpha: f64, tr_c: f64) -> DpUpdate {
         let eps = hencky(sigma);
-        let (eps_new, dq, _) = dp_project(eps, mu, lambda, alpha);
+        let (eps_new, dq, _) = dp_project_cohesive(eps, mu, lambda, alpha, tr_c);
         DpUpdate {
             eps,
             eps_new,
@@ -179,22 +204,17 @@ mod tests {
     /// Every lane is the scalar update's to the bit, in the portable lanes and in AVX
     /// registers, on stretches that take each case (expansion to the tip, inside the cone,
     /// onto the yield surface), the guards (`σ` at and below `SIGMA_MIN`, inverted, `σ = 1`
-    /// where `ε̂ = 0`) and non-finite input.
+    /// where `ε̂ = 0`) and non-finite input, for cohesionless and cohesive cones.
     #[test]
     fn lanes_equal_the_scalar_update() {
         let (mu, lambda) = lame(3.5e5, 0.3);
         let mut cases = Vec::new();
-        let mut seen = [false; 3];
         for i in 0..4000 {
             let t = i as f64;
             let s = |k: f64| 1.0 + 0.08 * (t * k).sin() + 0.02 * (t * k * 3.1).cos();
             let sigma = DVec3::new(s(0.37), s(0.71), s(1.13));
-            let alpha = dp_alpha(20.0 + (t * 0.19).sin().abs() * 30.0);
-            let (_, _, case) = dp_project(hencky(sigma), mu, lambda, alpha);
-            seen[case as usize] = true;
-            cases.push((sigma, alpha));
+            cases.push((sigma, dp_alpha(20.0 + (t * 0.19).sin().abs() * 30.0)));
         }
-        assert_eq!(seen, [true; 3], "every return-mapping case is exercised");
         for sigma in [
             DVec3::ONE,
             DVec3::new(1e-7, 1.0, 1.0),
@@ -209,15 +229,29 @@ mod tests {
         while cases.len() % LANES != 0 {
             cases.push((DVec3::ONE, 0.1));
         }
-        for group in cases.chunks_exact(LANES) {
-            let sigma: [DVec3; LANES] = std::array::from_fn(|l| group[l].0);
-            let alpha: [f64; LANES] = std::array::from_fn(|l| group[l].1);
-            let portable = dp_update_packed::<Arr<f64, LANES>>(&sigma, &alpha, mu, lambda);
-            let dispatched = dp_update_group(&sigma, &alpha, mu, lambda);
-            for l in 0..LANES {
-                let want = bits(&scalar(sigma[l], mu, lambda, alpha[l]));
-                assert_eq!(bits(&portable[l]), want, "portable lane at {:?}", sigma[l]);
-                assert_eq!(bits(&dispatched[l]), want, "AVX lane at {:?}", sigma[l]);
+        // A cohesion of 20 Pa puts the apex at a strain trace of about 1e-4, within the spread
+        // of the stretches above, so the shifted cone takes all three cases too.
+        for tr_c in [0.0, cohesion_trace(20.0, 30.0, mu, lambda)] {
+            let mut seen = [false; 3];
+            for (sigma, alpha) in &cases {
+                let (_, _, case) = dp_project_cohesive(hencky(*sigma), mu, lambda, *alpha, tr_c);
+                seen[case as usize] = true;
+            }
+            assert_eq!(
+                seen, [true; 3],
+                "every return-mapping case at tr_c = {tr_c:e}"
+            );
+            for group in cases.chunks_exact(LANES) {
+                let sigma: [DVec3; LANES] = std::array::from_fn(|l| group[l].0);
+                let alpha: [f64; LANES] = std::array::from_fn(|l| group[l].1);
+                let portable =
+                    dp_update_packed::<Arr<f64, LANES>>(&sigma, &alpha, mu, lambda, tr_c);
+                let dispatched = dp_update_group(&sigma, &alpha, mu, lambda, tr_c);
+                for l in 0..LANES {
+                    let want = bits(&scalar(sigma[l], mu, lambda, alpha[l], tr_c));
+                    assert_eq!(bits(&portable[l]), want, "portable lane at {:?}", sigma[l]);
+                    assert_eq!(bits(&dispatched[l]), want, "AVX lane at {:?}", sigma[l]);
+                }
             }
         }
     }
