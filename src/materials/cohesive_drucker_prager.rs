@@ -9,12 +9,13 @@
 //! none). A separate, lower cut-off would be a second parameter no test a laboratory runs on a
 //! powder (an angle of repose, a shear cell) identifies.
 
-use super::drucker_prager::{update_many_lanes, Cone};
+use super::drucker_prager::update_many_lanes;
 use super::{
-    check_elastic, check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated,
-    POISSON_RATIO, YOUNGS_MODULUS,
+    check_elastic, check_range, material_adj, FdStep, Group, Material, Param, Saved, UpdateAdj,
+    Updated, POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
+use crate::math::return_map::lanes::Cone;
 use crate::math::return_map::{
     cohesion_trace, cohesion_trace_adj, dp_alpha, dp_alpha_adj, dp_project_cohesive,
     dp_project_cohesive_adj, hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj,
@@ -217,21 +218,14 @@ impl Material for CohesiveDruckerPrager {
 
     /// Four particles at a time in vector registers (`return_map::lanes`), each the scalar
     /// update's result to the bit.
-    fn update_many(
-        &self,
-        sigma: &[DVec3],
-        q: &mut [f64],
-        saved: Option<&mut [Saved]>,
-        out: &mut [Updated],
-    ) {
+    fn update_many(&self, g: Group<'_>) {
         let c = self.cache();
         let cone = Cone {
             mu: c.mu,
             lambda: c.lambda,
             tr_c: c.tr_c,
-            hardens: false,
         };
-        update_many_lanes(sigma, q, saved, out, cone, |_| c.alpha);
+        update_many_lanes(g, cone, false, |_| c.alpha);
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches.

@@ -2,11 +2,11 @@
 //! optional hardening. The maths is in `crate::math::return_map`.
 
 use super::{
-    check_elastic, check_range, material_adj, FdStep, Material, Param, Saved, UpdateAdj, Updated,
-    POISSON_RATIO, YOUNGS_MODULUS,
+    check_elastic, check_range, material_adj, FdStep, Group, Material, Param, Saved, UpdateAdj,
+    Updated, POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
-use crate::math::return_map::lanes::{dp_update_group, LANES};
+use crate::math::return_map::lanes::{dp_update_group, Cone, LANES};
 use crate::math::return_map::{
     dp_alpha, dp_alpha_adj, dp_project, dp_project_adj, hardened_friction_deg, hencky, hencky_adj,
     kirchhoff_principal, kirchhoff_principal_adj, lame, stretch,
@@ -79,28 +79,22 @@ fn project(c: &Cache, sigma: DVec3, alpha: f64) -> Projected {
     }
 }
 
-/// What [`update_many_lanes`] needs of a Drucker–Prager cone besides `α`.
-pub(super) struct Cone {
-    pub mu: f64,
-    pub lambda: f64,
-    /// The apex's strain trace (`return_map::cohesion_trace`; 0 without cohesion).
-    pub tr_c: f64,
-    /// Whether the update adds `δq` to the hardening variable, as
-    /// `DruckerPrager::update` does (the cohesive material keeps none).
-    pub hardens: bool,
-}
-
 /// [`Material::update_many`] of the Drucker–Prager materials: `return_map::lanes` on groups of
-/// four, `alpha_at(q)` each particle's cone coefficient at its hardening variable, saving
-/// `[ε, ε′, exp ε′]` where asked.
+/// four, `alpha_at(q)` each particle's cone coefficient at its hardening variable, `δq` added to
+/// it where the material `hardens` (as `DruckerPrager::update` does; the cohesive material
+/// keeps none), saving `[ε, ε′, exp ε′]` where asked.
 pub(super) fn update_many_lanes(
-    sigma: &[DVec3],
-    q: &mut [f64],
-    mut saved: Option<&mut [Saved]>,
-    out: &mut [Updated],
+    g: Group<'_>,
     cone: Cone,
+    hardens: bool,
     alpha_at: impl Fn(f64) -> f64,
 ) {
+    let Group {
+        sigma,
+        q,
+        mut saved,
+        out,
+    } = g;
     let n = sigma.len();
     assert!(q.len() == n && out.len() == n, "update_many: one length");
     for g in (0..n).step_by(LANES) {
@@ -109,9 +103,8 @@ pub(super) fn update_many_lanes(
         let mut s = [DVec3::ONE; LANES];
         s[..m].copy_from_slice(&sigma[g..g + m]);
         let alpha: [f64; LANES] = std::array::from_fn(|l| alpha_at(q[g + l.min(m - 1)]));
-        let updates = dp_update_group(&s, &alpha, cone.mu, cone.lambda, cone.tr_c);
-        for (l, u) in updates.iter().take(m).enumerate() {
-            if cone.hardens {
+        for (l, u) in dp_update_group(&s, &alpha, cone).iter().take(m).enumerate() {
+            if hardens {
                 q[g + l] += u.dq;
             }
             if let Some(sv) = saved.as_deref_mut() {
@@ -239,13 +232,7 @@ impl Material for DruckerPrager {
 
     /// Four particles at a time in vector registers (`return_map::lanes`), each the scalar
     /// update's result to the bit.
-    fn update_many(
-        &self,
-        sigma: &[DVec3],
-        q: &mut [f64],
-        saved: Option<&mut [Saved]>,
-        out: &mut [Updated],
-    ) {
+    fn update_many(&self, g: Group<'_>) {
         let c = self.cache.as_ref().expect("prepared");
         let alpha_at = |q: f64| match self.hardening {
             None => c.alpha,
@@ -255,9 +242,8 @@ impl Material for DruckerPrager {
             mu: c.mu,
             lambda: c.lambda,
             tr_c: 0.0,
-            hardens: true,
         };
-        update_many_lanes(sigma, q, saved, out, cone, alpha_at);
+        update_many_lanes(g, cone, true, alpha_at);
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches (see

@@ -125,25 +125,19 @@ pub trait Material:
         let _ = saved;
         self.update(sigma, q)
     }
-    /// [`Material::update`] of each particle of a group (`sigma`, `q` and `out` of one length),
-    /// or [`Material::update_saving`] where `saved` is given: the same results, bit for bit, as
-    /// one particle at a time, which is what this default does. A material whose maths runs
-    /// several particles to a vector register overrides it.
-    fn update_many(
-        &self,
-        sigma: &[DVec3],
-        q: &mut [f64],
-        saved: Option<&mut [Saved]>,
-        out: &mut [Updated],
-    ) {
-        match saved {
+    /// [`Material::update`] of each particle of a [`Group`], or [`Material::update_saving`]
+    /// where it has `saved`: the same results, bit for bit, as one particle at a time, which is
+    /// what this default does. A material whose maths runs several particles to a vector
+    /// register overrides it.
+    fn update_many(&self, g: Group<'_>) {
+        match g.saved {
             Some(saved) => {
-                for (((s, q), sv), o) in sigma.iter().zip(q).zip(saved).zip(out) {
+                for (((s, q), sv), o) in g.sigma.iter().zip(g.q).zip(saved).zip(g.out) {
                     *o = self.update_saving(*s, q, sv);
                 }
             }
             None => {
-                for ((s, q), o) in sigma.iter().zip(q).zip(out) {
+                for ((s, q), o) in g.sigma.iter().zip(g.q).zip(g.out) {
                     *o = self.update(*s, q);
                 }
             }
@@ -162,6 +156,15 @@ pub trait Material:
         let _ = saved;
         self.update_adj(sigma, q, g_sigma_new, g_tau)
     }
+}
+
+/// A group of particles for [`Material::update_many`]: the singular values, the hardening
+/// variables, where to save what the adjoint reads (or `None`) and the results, of one length.
+pub struct Group<'a> {
+    pub sigma: &'a [DVec3],
+    pub q: &'a mut [f64],
+    pub saved: Option<&'a mut [Saved]>,
+    pub out: &'a mut [Updated],
 }
 
 /// What a material's update keeps for its adjoint (see `components::UpdateSaved`).

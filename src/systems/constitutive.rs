@@ -70,7 +70,12 @@ pub fn constitutive_model<M: Material>(
             let q = q.unwrap_or(&mut no_hardening[..n]);
             let mut updated = [(None, DVec3::ZERO); CHUNK];
             let (sv, mut tau_out) = saved.unzip();
-            mat.update_many(&svd.s[i0..i0 + n], q, sv, &mut updated[..n]);
+            mat.update_many(crate::materials::Group {
+                sigma: &svd.s[i0..i0 + n],
+                q,
+                saved: sv,
+                out: &mut updated[..n],
+            });
             for (l, &(s_new, tau_p)) in updated[..n].iter().enumerate() {
                 let i = i0 + l;
                 if let Some(t) = tau_out.as_deref_mut() {

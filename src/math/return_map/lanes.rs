@@ -16,6 +16,16 @@ use glam::DVec3;
 /// Particles in a group.
 pub const LANES: usize = 4;
 
+/// A Drucker–Prager cone's constants, besides each particle's `α`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cone {
+    /// The Lamé parameters.
+    pub mu: f64,
+    pub lambda: f64,
+    /// The apex's strain trace ([`super::cohesion_trace`]; 0 without cohesion).
+    pub tr_c: f64,
+}
+
 /// One particle's Drucker–Prager update: what `materials::DruckerPrager` returns and saves.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DpUpdate {
@@ -43,18 +53,13 @@ fn dot<V: Vector>(a: V3<V>, b: V3<V>) -> V {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-/// The update of each lane: `σ` (three vectors of lanes, by axis), the Lamé parameters, each
-/// lane's cone coefficient `α`, and the cone's apex trace `tr_c` (0 for cohesionless powder:
-/// [`super::dp_project_cohesive`] at any other). Loops, not closures: a closure that LLVM
+/// The update of each lane: `σ` (three vectors of lanes, by axis), each lane's cone coefficient
+/// `α`, and the cone (at `tr_c = 0` [`super::dp_project`], at any other
+/// [`super::dp_project_cohesive`]). Loops, not closures: a closure that LLVM
 /// declines to inline is compiled without the caller's AVX, and its intrinsics become calls.
 #[inline(always)]
-fn dp_update_body<V: F64Bits>(
-    sigma: V3<V>,
-    mu: f64,
-    lambda: f64,
-    alpha: V,
-    tr_c: f64,
-) -> [V3<V>; 5] {
+fn dp_update_body<V: F64Bits>(sigma: V3<V>, alpha: V, cone: Cone) -> [V3<V>; 5] {
+    let Cone { mu, lambda, tr_c } = cone;
     let zero = V::splat(0.0);
     // hencky: glam's max keeps the bound where σ is not above it (NaN included).
     let lo = V::splat(SIGMA_MIN);
@@ -110,9 +115,7 @@ fn dp_update_body<V: F64Bits>(
 fn dp_update_packed<V: F64Bits>(
     sigma: &[DVec3; LANES],
     alpha: &[f64; LANES],
-    mu: f64,
-    lambda: f64,
-    tr_c: f64,
+    cone: Cone,
 ) -> [DpUpdate; LANES] {
     let mut by_axis = [[0.0; LANES]; 3];
     for (l, s) in sigma.iter().enumerate() {
@@ -125,7 +128,7 @@ fn dp_update_packed<V: F64Bits>(
         V::load(&by_axis[1]),
         V::load(&by_axis[2]),
     ];
-    let r = dp_update_body(sv, mu, lambda, V::load(alpha), tr_c);
+    let r = dp_update_body(sv, V::load(alpha), cone);
     let mut out = [[[0.0; LANES]; 3]; 5];
     for q in 0..5 {
         for a in 0..3 {
@@ -149,28 +152,20 @@ fn dp_update_packed<V: F64Bits>(
 pub fn dp_update_group(
     sigma: &[DVec3; LANES],
     alpha: &[f64; LANES],
-    mu: f64,
-    lambda: f64,
-    tr_c: f64,
+    cone: Cone,
 ) -> [DpUpdate; LANES] {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, which is all the function's target features ask for.
-        return unsafe { dp_update_avx2(sigma, alpha, mu, lambda, tr_c) };
+        return unsafe { dp_update_avx2(sigma, alpha, cone) };
     }
-    dp_update_packed::<Arr<f64, LANES>>(sigma, alpha, mu, lambda, tr_c)
+    dp_update_packed::<Arr<f64, LANES>>(sigma, alpha, cone)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn dp_update_avx2(
-    sigma: &[DVec3; LANES],
-    alpha: &[f64; LANES],
-    mu: f64,
-    lambda: f64,
-    tr_c: f64,
-) -> [DpUpdate; LANES] {
-    dp_update_packed::<crate::math::lanes::F64x4>(sigma, alpha, mu, lambda, tr_c)
+fn dp_update_avx2(sigma: &[DVec3; LANES], alpha: &[f64; LANES], cone: Cone) -> [DpUpdate; LANES] {
+    dp_update_packed::<crate::math::lanes::F64x4>(sigma, alpha, cone)
 }
 
 #[cfg(test)]
@@ -244,9 +239,9 @@ mod tests {
             for group in cases.chunks_exact(LANES) {
                 let sigma: [DVec3; LANES] = std::array::from_fn(|l| group[l].0);
                 let alpha: [f64; LANES] = std::array::from_fn(|l| group[l].1);
-                let portable =
-                    dp_update_packed::<Arr<f64, LANES>>(&sigma, &alpha, mu, lambda, tr_c);
-                let dispatched = dp_update_group(&sigma, &alpha, mu, lambda, tr_c);
+                let cone = Cone { mu, lambda, tr_c };
+                let portable = dp_update_packed::<Arr<f64, LANES>>(&sigma, &alpha, cone);
+                let dispatched = dp_update_group(&sigma, &alpha, cone);
                 for l in 0..LANES {
                     let want = bits(&scalar(sigma[l], mu, lambda, alpha[l], tr_c));
                     assert_eq!(bits(&portable[l]), want, "portable lane at {:?}", sigma[l]);
