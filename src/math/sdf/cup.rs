@@ -42,14 +42,8 @@ pub fn cup_fillet(wall_thickness: f64, fillet_radius: Option<f64>) -> f64 {
 /// bisector is the cavity's medial axis, a crease of any distance field, and beyond the reach
 /// of particle contact).
 #[inline]
-pub fn cup_sdf(
-    p: DVec3,
-    outer_radius: f64,
-    height: f64,
-    wall: f64,
-    floor: f64,
-    k: f64,
-) -> (f64, DVec3) {
+pub fn cup_sdf(cup: &Cup, p: DVec3) -> (f64, DVec3) {
+    let (outer_radius, height, wall, floor, k) = cup.dims();
     let rho = (p.x * p.x + p.z * p.z).sqrt();
     let radial = if rho > 0.0 {
         DVec3::new(p.x / rho, 0.0, p.z / rho)
@@ -79,21 +73,15 @@ pub fn cup_sdf(
 }
 
 /// Hessian of [`cup_sdf`], branch by branch.
-pub fn cup_hessian(
-    p: DVec3,
-    outer_radius: f64,
-    height: f64,
-    wall: f64,
-    floor: f64,
-    k: f64,
-) -> DMat3 {
+pub fn cup_hessian(cup: &Cup, p: DVec3) -> DMat3 {
+    let (outer_radius, height, wall, floor, k) = cup.dims();
     let rho = (p.x * p.x + p.z * p.z).sqrt();
     let r = outer_radius - wall;
     let (a, b, c) = (r - rho, p.y - floor, p.y - height);
     if a > 0.0 && c > 0.0 {
         return circle_distance_hessian(p, r, height);
     }
-    let (phi, _) = cup_sdf(p, outer_radius, height, wall, floor, k);
+    let (phi, _) = cup_sdf(cup, p);
     let outer = sd_cylinder_y(p, 0.5 * height, outer_radius, 0.5 * height);
     if outer.0 >= phi {
         return cylinder_hessian(p, 0.5 * height, outer_radius, 0.5 * height);
@@ -117,27 +105,20 @@ impl Cup {
         cup_fillet(self.wall_thickness, self.fillet_radius)
     }
 
+    /// `(R, H, wall, floor, k)`: the outer radius, height, wall and floor thickness and fillet.
+    #[inline(always)]
+    fn dims(&self) -> (f64, f64, f64, f64, f64) {
+        let (w, f) = (self.wall_thickness, self.floor_thickness);
+        (self.outer_radius, self.height, w, f, self.fillet())
+    }
+
     #[inline]
     pub fn sdf(&self, p: DVec3) -> (f64, DVec3) {
-        cup_sdf(
-            p,
-            self.outer_radius,
-            self.height,
-            self.wall_thickness,
-            self.floor_thickness,
-            self.fillet(),
-        )
+        cup_sdf(self, p)
     }
 
     pub fn hessian(&self, p: DVec3) -> DMat3 {
-        cup_hessian(
-            p,
-            self.outer_radius,
-            self.height,
-            self.wall_thickness,
-            self.floor_thickness,
-            self.fillet(),
-        )
+        cup_hessian(self, p)
     }
 
     /// A point inside the cavity and more than `s` from its wall, floor and open top is clear,

@@ -70,16 +70,30 @@ pub fn sd_cylinder_y(p: DVec3, cy: f64, r: f64, hh: f64) -> (f64, DVec3) {
     }
 }
 
+/// The distance `ρ` of `p` from the y axis, and the radial and azimuthal unit vectors there
+/// (`None` on the axis, where both are undefined).
+#[inline]
+fn cylindrical_frame(p: DVec3) -> Option<(f64, DVec3, DVec3)> {
+    let rho = (p.x * p.x + p.z * p.z).sqrt();
+    if rho == 0.0 {
+        return None;
+    }
+    let radial = DVec3::new(p.x / rho, 0.0, p.z / rho);
+    Some((rho, radial, DVec3::new(-radial.z, 0.0, radial.x)))
+}
+
+/// The outer product `a·bᵀ`.
+#[inline]
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
 /// Hessian of the distance from `p` to the horizontal circle of radius `r` at height `y0` (about
 /// the y axis): `(P − n·nᵀ)/d + (ρ − r)/(d·ρ)·θ̂θ̂ᵀ`, `P` the projector on the (ρ̂, ŷ) plane.
 pub fn circle_distance_hessian(p: DVec3, r: f64, y0: f64) -> DMat3 {
-    let rho = (p.x * p.x + p.z * p.z).sqrt();
-    if rho == 0.0 {
+    let Some((rho, radial, theta)) = cylindrical_frame(p) else {
         return DMat3::ZERO;
-    }
-    let radial = DVec3::new(p.x / rho, 0.0, p.z / rho);
-    let theta = DVec3::new(-radial.z, 0.0, radial.x);
-    let outer = |a: DVec3, b: DVec3| DMat3::from_cols(a * b.x, a * b.y, a * b.z);
+    };
     let (dx, dy) = (rho - r, p.y - y0);
     let d = (dx * dx + dy * dy).sqrt();
     if d == 0.0 {
@@ -94,13 +108,9 @@ pub fn circle_distance_hessian(p: DVec3, r: f64, y0: f64) -> DMat3 {
 /// the rim the Hessian of the distance to a circle, `(P − n·nᵀ)/d + (ρ − r)/(d·ρ)·θ̂θ̂ᵀ` with `P`
 /// the projector on the (ρ̂, ŷ) plane.
 pub fn cylinder_hessian(p: DVec3, cy: f64, r: f64, hh: f64) -> DMat3 {
-    let rho = (p.x * p.x + p.z * p.z).sqrt();
-    if rho == 0.0 {
+    let Some((rho, radial, theta)) = cylindrical_frame(p) else {
         return DMat3::ZERO;
-    }
-    let radial = DVec3::new(p.x / rho, 0.0, p.z / rho);
-    let theta = DVec3::new(-radial.z, 0.0, radial.x);
-    let outer = |a: DVec3, b: DVec3| DMat3::from_cols(a * b.x, a * b.y, a * b.z);
+    };
     let y = p.y - cy;
     let (dx, dy) = (rho - r, y.abs() - hh);
     if dx > 0.0 && dy > 0.0 {
@@ -121,7 +131,7 @@ pub fn cylinder_hessian(p: DVec3, cy: f64, r: f64, hh: f64) -> DMat3 {
 #[inline]
 pub(super) fn curvature(proj: DMat3, n: DVec3, dist: f64) -> DMat3 {
     if dist > 0.0 {
-        (proj - DMat3::from_cols(n * n.x, n * n.y, n * n.z)) * (1.0 / dist)
+        (proj - outer(n, n)) * (1.0 / dist)
     } else {
         DMat3::ZERO
     }
