@@ -10,7 +10,8 @@ use crate::adjoint::grid_collision::{
 };
 use crate::components::*;
 use crate::systems::particle_collision::{
-    particle_contact, project_particle, project_particle_adj, soft_speed, Reach, MARGIN_CELLS,
+    particle_contact, project_particle, project_particle_adj, soft_speed, ContactRule, Reach,
+    MARGIN_CELLS,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -61,13 +62,20 @@ pub fn particle_collision_adjoint(
                     continue;
                 };
                 hits[count] = (ci, v, phi, n, vb, soft);
-                v = project_particle(v, phi, n, vb, dt, margin, c.contact, c.friction, soft);
+                v = project_particle(
+                    v,
+                    (phi, n, vb),
+                    &ContactRule::new(dt, margin, c.contact, c.friction, soft),
+                );
                 count += 1;
             }
             for &(ci, vin, phi, n, vb, soft) in hits[..count].iter().rev() {
                 let (c, pose) = (cs[ci].0, cs[ci].1);
                 let a = project_particle_adj(
-                    vin, phi, n, vb, dt, margin, c.contact, c.friction, soft, *g,
+                    vin,
+                    (phi, n, vb),
+                    &ContactRule::new(dt, margin, c.contact, c.friction, soft),
+                    *g,
                 );
                 *g = a.v;
                 let h = world_hessian(&c.shape, pose, xp);

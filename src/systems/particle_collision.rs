@@ -65,21 +65,38 @@ fn soft_push(x: f64, tau: f64) -> (f64, f64) {
     }
 }
 
-/// Velocity of a particle after the non-penetration projection (see the module docs); `soft`
-/// is the soft projection's band [`soft_speed`] (0: the hard projection).
+/// Where a particle meets a collider: the signed distance `φ`, the outward normal `n` and the
+/// surface's velocity `v_b` there (what [`particle_contact`] returns).
+pub type Hit = (f64, DVec3, DVec3);
+
+/// How a collider projects the particles that meet it: the substep, the contact margin, the
+/// contact mode, the friction coefficient and the soft projection's band [`soft_speed`] (0:
+/// the hard projection).
+#[derive(Clone, Copy, Debug)]
+pub struct ContactRule {
+    pub dt: f64,
+    pub margin: f64,
+    pub mode: ContactMode,
+    pub mu: f64,
+    pub soft: f64,
+}
+
+impl ContactRule {
+    pub fn new(dt: f64, margin: f64, mode: ContactMode, mu: f64, soft: f64) -> Self {
+        Self {
+            dt,
+            margin,
+            mode,
+            mu,
+            soft,
+        }
+    }
+}
+
+/// Velocity of a particle after the non-penetration projection (see the module docs).
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub fn project_particle(
-    v: DVec3,
-    phi: f64,
-    n: DVec3,
-    v_body: DVec3,
-    dt: f64,
-    margin: f64,
-    mode: ContactMode,
-    mu: f64,
-    soft: f64,
-) -> DVec3 {
+pub fn project_particle(v: DVec3, (phi, n, v_body): Hit, rule: &ContactRule) -> DVec3 {
+    let (dt, margin, mode, mu, soft) = (rule.dt, rule.margin, rule.mode, rule.mu, rule.soft);
     let v_min = v_body.dot(n).max(0.0) + (margin - phi) / dt;
     let vn = v.dot(n);
     if vn >= v_min + soft {
@@ -112,19 +129,13 @@ pub struct ProjectAdj {
 /// Adjoint of [`project_particle`]: `∂L/∂v′` → adjoints of `v`, `φ`, `n`, `v_b`, `μ`. Exact in
 /// each regime; the switches (constraint active or not, `v·n = v_min`; Coulomb stick or slip)
 /// are kinks where the gradient is that of the regime the forward pass took (one-sided).
-#[allow(clippy::too_many_arguments)]
 pub fn project_particle_adj(
     v: DVec3,
-    phi: f64,
-    n: DVec3,
-    v_body: DVec3,
-    dt: f64,
-    margin: f64,
-    mode: ContactMode,
-    mu: f64,
-    soft: f64,
+    (phi, n, v_body): Hit,
+    rule: &ContactRule,
     g_out: DVec3,
 ) -> ProjectAdj {
+    let (dt, margin, mode, mu, soft) = (rule.dt, rule.margin, rule.mode, rule.mu, rule.soft);
     let vbn_plus = v_body.dot(n);
     let approaching = vbn_plus > 0.0;
     let v_min = vbn_plus.max(0.0) + (margin - phi) / dt;
@@ -284,7 +295,11 @@ pub fn particle_collision(
                 if let Some((phi, n, vb)) =
                     particle_contact(c, pose, reach, x, *v, dt, margin + soft * dt)
                 {
-                    *v = project_particle(*v, phi, n, vb, dt, margin, c.contact, c.friction, soft);
+                    *v = project_particle(
+                        *v,
+                        (phi, n, vb),
+                        &ContactRule::new(dt, margin, c.contact, c.friction, soft),
+                    );
                 }
             }
         });
@@ -346,9 +361,19 @@ mod tests {
             checked += 1;
             in_band += usize::from(x.abs() < soft);
             let f = |v: DVec3, phi: f64, n: DVec3, vb: DVec3, mu: f64| {
-                project_particle(v, phi, n, vb, dt, margin, mode, mu, soft).dot(w)
+                project_particle(
+                    v,
+                    (phi, n, vb),
+                    &ContactRule::new(dt, margin, mode, mu, soft),
+                )
+                .dot(w)
             };
-            let a = project_particle_adj(v, phi, n, vb, dt, margin, mode, mu, soft, w);
+            let a = project_particle_adj(
+                v,
+                (phi, n, vb),
+                &ContactRule::new(dt, margin, mode, mu, soft),
+                w,
+            );
             let close = |fd: f64, ad: f64, what: &str| {
                 assert!(
                     (fd - ad).abs() <= TOL * fd.abs().max(ad.abs()).max(FLOOR),
@@ -410,28 +435,16 @@ mod tests {
             let f = |v: DVec3| {
                 project_particle(
                     v,
-                    phi,
-                    n,
-                    DVec3::ZERO,
-                    dt,
-                    margin,
-                    ContactMode::Slip,
-                    0.3,
-                    soft,
+                    (phi, n, DVec3::ZERO),
+                    &ContactRule::new(dt, margin, ContactMode::Slip, 0.3, soft),
                 )
                 .dot(w)
             };
             let fd = (f(v + n * eps) - f(v - n * eps)) / (2.0 * eps);
             let a = project_particle_adj(
                 v,
-                phi,
-                n,
-                DVec3::ZERO,
-                dt,
-                margin,
-                ContactMode::Slip,
-                0.3,
-                soft,
+                (phi, n, DVec3::ZERO),
+                &ContactRule::new(dt, margin, ContactMode::Slip, 0.3, soft),
                 w,
             );
             let agrees = (fd - a.v.y).abs() <= 1e-6 * fd.abs().max(1.0);
@@ -457,7 +470,11 @@ mod tests {
             let vb = 0.3 * DVec3::new(r(), r(), r());
             let phi = 1e-3 * r();
             let v_min = vb.dot(n).max(0.0) + (margin - phi) / dt;
-            let out = project_particle(v, phi, n, vb, dt, margin, ContactMode::Slip, 0.4, soft);
+            let out = project_particle(
+                v,
+                (phi, n, vb),
+                &ContactRule::new(dt, margin, ContactMode::Slip, 0.4, soft),
+            );
             assert!(out.dot(n) >= v_min - 1e-12, "{out} below {v_min}");
             if v.dot(n) >= v_min + soft {
                 assert_eq!(out, v);
@@ -472,28 +489,16 @@ mod tests {
         // 0.1 mm above the surface, moving down at 1 m/s: would end 0.9 mm inside.
         let v = project_particle(
             DVec3::new(0.2, -1.0, 0.0),
-            1e-4,
-            n,
-            DVec3::ZERO,
-            dt,
-            1e-5,
-            ContactMode::Separate,
-            0.0,
-            0.0,
+            (1e-4, n, DVec3::ZERO),
+            &ContactRule::new(dt, 1e-5, ContactMode::Separate, 0.0, 0.0),
         );
         assert!((1e-4 + dt * v.y - 1e-5).abs() < 1e-15);
         assert_eq!(v.x, 0.2);
         // Friction takes μ·Δv_n off the tangential speed.
         let vf = project_particle(
             DVec3::new(0.2, -1.0, 0.0),
-            1e-4,
-            n,
-            DVec3::ZERO,
-            dt,
-            1e-5,
-            ContactMode::Separate,
-            0.1,
-            0.0,
+            (1e-4, n, DVec3::ZERO),
+            &ContactRule::new(dt, 1e-5, ContactMode::Separate, 0.1, 0.0),
         );
         assert!((vf.x - (0.2 - 0.1 * 0.91)).abs() < 1e-12);
         // A particle that cannot reach the wall is untouched.
@@ -501,14 +506,8 @@ mod tests {
         assert_eq!(
             project_particle(
                 w,
-                1e-3,
-                n,
-                DVec3::ZERO,
-                dt,
-                1e-5,
-                ContactMode::Separate,
-                0.5,
-                0.0
+                (1e-3, n, DVec3::ZERO),
+                &ContactRule::new(dt, 1e-5, ContactMode::Separate, 0.5, 0.0)
             ),
             w
         );
@@ -535,7 +534,11 @@ mod tests {
             if clear_of(phi, margin, dt, v, vb) {
                 skipped += 1;
                 assert_eq!(
-                    project_particle(v, phi, n, vb, dt, margin, mode, 0.4, 0.0),
+                    project_particle(
+                        v,
+                        (phi, n, vb),
+                        &ContactRule::new(dt, margin, mode, 0.4, 0.0)
+                    ),
                     v
                 );
             }
@@ -543,7 +546,11 @@ mod tests {
             let soft = 0.2;
             if clear_of(phi, margin + soft * dt, dt, v, vb) {
                 assert_eq!(
-                    project_particle(v, phi, n, vb, dt, margin, mode, 0.4, soft),
+                    project_particle(
+                        v,
+                        (phi, n, vb),
+                        &ContactRule::new(dt, margin, mode, 0.4, soft)
+                    ),
                     v
                 );
             }
