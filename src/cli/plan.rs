@@ -3,8 +3,9 @@
 //! (or the greedy and scripted baselines), from the scene's `plan` section.
 
 use anyhow::Result;
-use powderlab::lab::plan::dosing::{dosing_plan, Method};
-use powderlab::lab::plan::output::{plan_into, push_into};
+use powderlab::lab::plan::dosing::{dosing_plan, Dosing, Method};
+use powderlab::lab::plan::output::plan_into;
+use powderlab::lab::plan::push::Push;
 use powderlab::scene::plan::PlanSpec;
 use powderlab::scene::Scene;
 use std::path::PathBuf;
@@ -40,18 +41,7 @@ pub fn run(a: Args) -> Result<()> {
         return push(a, scene.clone(), p.clone());
     }
     let plan = dosing_plan(&scene)?;
-    let methods = a
-        .method
-        .iter()
-        .map(|m| {
-            Method::parse(m)
-                .ok_or_else(|| anyhow::anyhow!("--method {m}: expected astar, greedy or scripted"))
-        })
-        .collect::<Result<Vec<_>>>()?;
-    let out = a.out.unwrap_or_else(|| {
-        let stem = a.scene.file_stem().unwrap_or_default().to_string_lossy();
-        PathBuf::from("runs").join(stem.as_ref()).join("plan")
-    });
+    let (methods, out) = methods_and_out(&a)?;
     for method in methods {
         let bound = match method {
             Method::Astar => plan.max_expansions * plan.scoop_budget,
@@ -65,7 +55,7 @@ pub fn run(a: Args) -> Result<()> {
             plan.scoop_budget
         );
         let pb = super::bar(bound as u64, a.json);
-        let r = plan_into(&out, scene.clone(), method, a.seed, !a.no_rrd, follow(&pb))?;
+        let r = plan_into::<Dosing>(&out, scene.clone(), method, a.seed, !a.no_rrd, follow(&pb))?;
         pb.finish_and_clear();
         if a.json {
             println!("{}", serde_json::to_string(&r)?);
@@ -136,7 +126,7 @@ fn push(a: Args, scene: Scene, plan: powderlab::scene::plan::PushPlan) -> Result
             plan.stroke_budget
         );
         let pb = super::bar(bound as u64, a.json);
-        let r = push_into(&out, scene.clone(), method, a.seed, !a.no_rrd, follow(&pb))?;
+        let r = plan_into::<Push>(&out, scene.clone(), method, a.seed, !a.no_rrd, follow(&pb))?;
         pb.finish_and_clear();
         if a.json {
             println!("{}", serde_json::to_string(&r)?);

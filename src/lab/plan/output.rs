@@ -24,66 +24,86 @@ pub fn plan_file(out: &Path, method: Method, ext: &str) -> PathBuf {
     out.join(format!("plan-{}.{ext}", method.name()))
 }
 
-/// Plans `scene` with `method` into `out`: `plan.json`, the journal and, with `record`,
-/// `plan.rrd`. `progress` hears of every rollout (rollouts so far, a message).
-pub fn plan_into(
-    out: &Path,
-    scene: Scene,
-    method: Method,
-    seed: u64,
-    record: bool,
-    progress: Progress,
-) -> anyhow::Result<PlanResult> {
-    std::fs::create_dir_all(out)?;
-    let journal = journal_path(out, &scene, seed);
-    let mut task = Dosing::new(scene, seed, Some(&journal))?;
-    task.progress = progress;
-    let (result, path) = task.run(method)?;
-    write_atomic(
-        &plan_file(out, method, "json"),
-        serde_json::to_string_pretty(&result)?.as_bytes(),
-    )?;
-    if record {
-        record_path(&task, &path, &plan_file(out, method, "rrd"))?;
-    }
-    Ok(result)
+/// A plan that [`plan_into`] runs and writes: multi-scoop dosing ([`Dosing`]) or a push plan
+/// ([`Push`]).
+pub trait PlanTask: Sized {
+    /// What `plan-METHOD.json` holds.
+    type Result: serde::Serialize;
+    /// A node of the plan's path.
+    type Node;
+    /// The task of `scene` from `seed`, replaying and appending to `journal`.
+    fn open(scene: Scene, seed: u64, journal: &Path, progress: Progress) -> anyhow::Result<Self>;
+    /// Plans with `method`: the result and the path from the start.
+    fn run(&mut self, method: Method) -> anyhow::Result<(Self::Result, Vec<Self::Node>)>;
+    /// The path's moves (scoops or strokes) simulated again one after another, each from its
+    /// node.
+    fn replay(&self, path: &[Self::Node]) -> Vec<anyhow::Result<crate::sim::Simulation>>;
 }
 
-/// [`plan_into`] for a push plan: `plan-METHOD.json` holds a [`PushResult`].
-pub fn push_into(
-    out: &Path,
-    scene: Scene,
-    method: Method,
-    seed: u64,
-    record: bool,
-    progress: Progress,
-) -> anyhow::Result<PushResult> {
-    std::fs::create_dir_all(out)?;
-    let journal = journal_path(out, &scene, seed);
-    let mut task = Push::new(scene, seed, Some(&journal))?;
-    task.progress = progress;
-    let (result, path) = task.run(method)?;
-    write_atomic(
-        &plan_file(out, method, "json"),
-        serde_json::to_string_pretty(&result)?.as_bytes(),
-    )?;
-    if record {
-        let sims = path
-            .windows(2)
+impl PlanTask for Dosing {
+    type Result = PlanResult;
+    type Node = DoseNode;
+    fn open(scene: Scene, seed: u64, journal: &Path, progress: Progress) -> anyhow::Result<Self> {
+        let mut task = Dosing::new(scene, seed, Some(journal))?;
+        task.progress = progress;
+        Ok(task)
+    }
+    fn run(&mut self, method: Method) -> anyhow::Result<(PlanResult, Vec<DoseNode>)> {
+        Dosing::run(self, method)
+    }
+    fn replay(&self, path: &[DoseNode]) -> Vec<anyhow::Result<crate::sim::Simulation>> {
+        path.windows(2)
+            .filter_map(|pair| pair[1].scoop.as_ref().map(|s| (&pair[0], s.theta)))
+            .map(|(n, theta)| self.scoop_simulation(n, theta))
+            .collect()
+    }
+}
+
+impl PlanTask for Push {
+    type Result = PushResult;
+    type Node = PushNode;
+    fn open(scene: Scene, seed: u64, journal: &Path, progress: Progress) -> anyhow::Result<Self> {
+        let mut task = Push::new(scene, seed, Some(journal))?;
+        task.progress = progress;
+        Ok(task)
+    }
+    fn run(&mut self, method: Method) -> anyhow::Result<(PushResult, Vec<PushNode>)> {
+        Push::run(self, method)
+    }
+    fn replay(&self, path: &[PushNode]) -> Vec<anyhow::Result<crate::sim::Simulation>> {
+        path.windows(2)
             .filter_map(|pair| pair[1].stroke.as_ref().map(|d| (&pair[0], d.stroke)))
-            .map(|(n, st): (&PushNode, _)| task.stroke_simulation(n, &st));
-        record_sims(sims, &plan_file(out, method, "rrd"))?;
+            .map(|(n, st)| self.stroke_simulation(n, &st))
+            .collect()
     }
-    Ok(result)
 }
 
-/// Records the scoops of `path` one after another (each simulated again from its node).
-fn record_path(task: &Dosing, path: &[DoseNode], file: &Path) -> anyhow::Result<()> {
-    let sims = path
-        .windows(2)
-        .filter_map(|pair| pair[1].scoop.as_ref().map(|s| (&pair[0], s.theta)))
-        .map(|(n, theta)| task.scoop_simulation(n, theta));
-    record_sims(sims, file)
+/// Plans `scene` with `method` into `out`: `plan-METHOD.json`, the journal and, with `record`,
+/// `plan-METHOD.rrd` (the path's moves one after another). `progress` hears of every rollout
+/// (rollouts so far, a message).
+pub fn plan_into<T: PlanTask>(
+    out: &Path,
+    scene: Scene,
+    method: Method,
+    seed: u64,
+    record: bool,
+    progress: Progress,
+) -> anyhow::Result<T::Result> {
+    std::fs::create_dir_all(out)?;
+    let journal = journal_path(out, &scene, seed);
+    let mut task = T::open(scene, seed, &journal, progress)?;
+    let (result, path) = task.run(method)?;
+    write_atomic(
+        &plan_file(out, method, "json"),
+        serde_json::to_string_pretty(&result)?.as_bytes(),
+    )?;
+    if record {
+        record_sims(
+            task.replay(&path).into_iter(),
+            &plan_file(out, method, "rrd"),
+        )?;
+    }
+    Ok(result)
 }
 
 /// Records simulations one after another on one timeline, each from its first step to its

@@ -5,7 +5,7 @@
 //! it from the same scene (`plan::output::plan_into`, without a recording). A plan's result and
 //! its journal stay in `dir/instance-K/`, so a killed study resumes where it was.
 
-use crate::lab::plan::dosing::{Method, PlanResult};
+use crate::lab::plan::dosing::{Dosing, Method, PlanResult};
 use crate::lab::plan::output::{plan_file, plan_into};
 use crate::lab::stats::{mean_sd as mean_std, median, sign_test, wilcoxon_less};
 use crate::materials::drucker_prager::DruckerPrager;
@@ -112,7 +112,7 @@ pub fn run(
         for &m in methods {
             progress(inst.index, m);
             let r = kept_or(&out, m, || {
-                plan_into(
+                plan_into::<Dosing>(
                     &out,
                     scene.clone(),
                     m,

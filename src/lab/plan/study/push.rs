@@ -2,8 +2,8 @@
 //! `scenes/plate_push.ron`, A* against greedy and scripted (docs/results/planning.md).
 
 use super::planning::kept_or;
-use crate::lab::plan::output::push_into;
-use crate::lab::plan::push::PushResult;
+use crate::lab::plan::output::plan_into;
+use crate::lab::plan::push::{Push, PushResult};
 use crate::lab::plan::Method;
 use crate::lab::stats::sign_test;
 use crate::scene::plan::{PlanSpec, PushClass};
@@ -113,7 +113,7 @@ pub fn run_push(
         for &m in methods {
             progress(k, m);
             let r = kept_or(&out, m, || {
-                push_into(
+                plan_into::<Push>(
                     &out,
                     scene.clone(),
                     m,
