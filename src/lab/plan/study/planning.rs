@@ -6,7 +6,7 @@
 //! its journal stay in `dir/instance-K/`, so a killed study resumes where it was.
 
 use crate::lab::plan::dosing::{Dosing, Method, PlanResult};
-use crate::lab::plan::output::{plan_file, plan_into};
+use crate::lab::plan::output::{plan_file, plan_into, PlanTask};
 use crate::lab::stats::{mean_sd as mean_std, median, sign_test, wilcoxon_less};
 use crate::materials::drucker_prager::DruckerPrager;
 use crate::scene::plan::PlanSpec;
@@ -111,17 +111,7 @@ pub fn run(
         let mut plans = Vec::new();
         for &m in methods {
             progress(inst.index, m);
-            let r = kept_or(&out, m, || {
-                plan_into::<Dosing>(
-                    &out,
-                    scene.clone(),
-                    m,
-                    inst.index as u64,
-                    false,
-                    Box::new(|_, _| {}),
-                )
-            })?;
-            plans.push(r);
+            plans.push(kept_or::<Dosing>(&out, &scene, m, inst.index as u64)?);
         }
         rows.push(Row {
             instance: inst.clone(),
@@ -131,19 +121,23 @@ pub fn run(
     Ok(rows)
 }
 
-/// The plan of `method` kept in `out` from an earlier run, or `plan()`'s new one: a killed
-/// study resumes at the first plan it had not written.
-pub fn kept_or<R: serde::de::DeserializeOwned>(
+/// The plan of `method` kept in `out` from an earlier run, or a new one planned there from
+/// `seed` without a recording: a killed study resumes at the first plan it had not written.
+pub fn kept_or<T: PlanTask>(
     out: &Path,
+    scene: &Scene,
     method: Method,
-    plan: impl FnOnce() -> anyhow::Result<R>,
-) -> anyhow::Result<R> {
+    seed: u64,
+) -> anyhow::Result<T::Result>
+where
+    T::Result: serde::de::DeserializeOwned,
+{
     let kept = std::fs::read_to_string(plan_file(out, method, "json"))
         .ok()
         .and_then(|t| serde_json::from_str(&t).ok());
     match kept {
         Some(r) => Ok(r),
-        None => plan(),
+        None => plan_into::<T>(out, scene.clone(), method, seed, false, Box::new(|_, _| {})),
     }
 }
 

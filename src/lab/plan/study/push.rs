@@ -2,7 +2,6 @@
 //! `scenes/plate_push.ron`, A* against greedy and scripted (docs/results/planning.md).
 
 use super::planning::kept_or;
-use crate::lab::plan::output::plan_into;
 use crate::lab::plan::push::{Push, PushResult};
 use crate::lab::plan::Method;
 use crate::lab::stats::sign_test;
@@ -112,17 +111,7 @@ pub fn run_push(
         let mut plans = Vec::new();
         for &m in methods {
             progress(k, m);
-            let r = kept_or(&out, m, || {
-                plan_into::<Push>(
-                    &out,
-                    scene.clone(),
-                    m,
-                    inst.index as u64,
-                    false,
-                    Box::new(|_, _| {}),
-                )
-            })?;
-            plans.push(r);
+            plans.push(kept_or::<Push>(&out, &scene, m, inst.index as u64)?);
         }
         rows.push(PushRow {
             instance: inst.clone(),
