@@ -90,22 +90,23 @@ fn backward(
     if json_out {
         println!(
             "{}",
-            json!({
-                "scene": scene.display().to_string(),
-                "particles": n,
-                "steps": steps,
-                "substeps_total": substeps,
-                "threads": sim.threads(),
-                "wall_s": wall,
-                "particle_substeps_per_s_forward_backward": rate,
-                "peak_rss_bytes": peak,
-                "tape_bytes": g.tape_bytes,
-                "checkpoint_every": g.checkpoint_every,
-                "loss": g.loss,
-                "grad_tool_velocity": tool_v,
-                "grad_v0_sum": [gv0.x, gv0.y, gv0.z],
-                "timing_s": g.timing.iter().map(|(k, v)| (k.clone(), json!(v))).collect::<serde_json::Map<_, _>>(),
-            })
+            run_json(
+                &scene,
+                &sim,
+                n,
+                steps,
+                wall,
+                peak,
+                json!({
+                    "particle_substeps_per_s_forward_backward": rate,
+                    "tape_bytes": g.tape_bytes,
+                    "checkpoint_every": g.checkpoint_every,
+                    "loss": g.loss,
+                    "grad_tool_velocity": tool_v,
+                    "grad_v0_sum": [gv0.x, gv0.y, gv0.z],
+                    "timing_s": g.timing.iter().map(|(k, v)| (k.clone(), json!(v))).collect::<serde_json::Map<_, _>>(),
+                })
+            )
         );
     } else {
         println!("scene            {}", scene.display());
@@ -183,19 +184,20 @@ fn forward(
             .collect();
         println!(
             "{}",
-            json!({
-                "scene": scene.display().to_string(),
-                "particles": n,
-                "steps": steps,
-                "substeps_total": substeps,
-                "threads": sim.threads(),
-                "wall_s": wall,
-                "particle_substeps_per_s": rate,
-                "peak_rss_bytes": peak,
-                "final_mean_position_m": [mean_pos.x, mean_pos.y, mean_pos.z],
-                "state_fingerprint": format!("{fingerprint:016x}"),
-                "stages": stages_obj,
-            })
+            run_json(
+                &scene,
+                &sim,
+                n,
+                steps,
+                wall,
+                peak,
+                json!({
+                    "particle_substeps_per_s": rate,
+                    "final_mean_position_m": [mean_pos.x, mean_pos.y, mean_pos.z],
+                    "state_fingerprint": format!("{fingerprint:016x}"),
+                    "stages": stages_obj,
+                })
+            )
         );
     } else {
         println!("scene            {}", scene.display());
@@ -220,4 +222,30 @@ fn forward(
         }
     }
     Ok(())
+}
+
+/// A run's JSON report: the fields every run has (scene, its `n` particles, steps, substeps,
+/// threads, wall time, peak RSS) and the object `more`'s.
+fn run_json(
+    scene: &std::path::Path,
+    sim: &Simulation,
+    n: usize,
+    steps: usize,
+    wall: f64,
+    peak: u64,
+    more: serde_json::Value,
+) -> serde_json::Value {
+    let mut v = json!({
+        "scene": scene.display().to_string(),
+        "particles": n,
+        "steps": steps,
+        "substeps_total": steps * sim.params().substeps,
+        "threads": sim.threads(),
+        "wall_s": wall,
+        "peak_rss_bytes": peak,
+    });
+    if let (Some(o), serde_json::Value::Object(m)) = (v.as_object_mut(), more) {
+        o.extend(m);
+    }
+    v
 }
