@@ -88,26 +88,16 @@ fn backward(
         .collect();
     let gv0: glam::DVec3 = g.v0.iter().flatten().copied().sum();
     if json_out {
-        println!(
-            "{}",
-            run_json(
-                &scene,
-                &sim,
-                n,
-                steps,
-                wall,
-                peak,
-                json!({
-                    "particle_substeps_per_s_forward_backward": rate,
-                    "tape_bytes": g.tape_bytes,
-                    "checkpoint_every": g.checkpoint_every,
-                    "loss": g.loss,
-                    "grad_tool_velocity": tool_v,
-                    "grad_v0_sum": [gv0.x, gv0.y, gv0.z],
-                    "timing_s": g.timing.iter().map(|(k, v)| (k.clone(), json!(v))).collect::<serde_json::Map<_, _>>(),
-                })
-            )
-        );
+        let more = json!({
+            "particle_substeps_per_s_forward_backward": rate,
+            "tape_bytes": g.tape_bytes,
+            "checkpoint_every": g.checkpoint_every,
+            "loss": g.loss,
+            "grad_tool_velocity": tool_v,
+            "grad_v0_sum": [gv0.x, gv0.y, gv0.z],
+            "timing_s": g.timing.iter().map(|(k, v)| (k.clone(), json!(v))).collect::<serde_json::Map<_, _>>(),
+        });
+        println!("{}", run_json(&scene, &sim, n, steps, wall, peak, more));
     } else {
         println!("scene            {}", scene.display());
         println!("particles        {n}, {substeps} substeps ({steps} steps)");
@@ -182,23 +172,13 @@ fn forward(
             .iter()
             .map(|(k, v)| (format!("{k}_s"), json!(v)))
             .collect();
-        println!(
-            "{}",
-            run_json(
-                &scene,
-                &sim,
-                n,
-                steps,
-                wall,
-                peak,
-                json!({
-                    "particle_substeps_per_s": rate,
-                    "final_mean_position_m": [mean_pos.x, mean_pos.y, mean_pos.z],
-                    "state_fingerprint": format!("{fingerprint:016x}"),
-                    "stages": stages_obj,
-                })
-            )
-        );
+        let more = json!({
+            "particle_substeps_per_s": rate,
+            "final_mean_position_m": [mean_pos.x, mean_pos.y, mean_pos.z],
+            "state_fingerprint": format!("{fingerprint:016x}"),
+            "stages": stages_obj,
+        });
+        println!("{}", run_json(&scene, &sim, n, steps, wall, peak, more));
     } else {
         println!("scene            {}", scene.display());
         println!("particles        {n}");
