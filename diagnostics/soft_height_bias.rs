@@ -6,7 +6,7 @@
 //! `cargo run --release --example soft_height_bias [-- PIXEL_M]` (default one grid cell).
 
 use powderlab::lab::calibrate::{self, params};
-use powderlab::math::heightfield::{soft_heights, squared_error};
+use powderlab::math::heightfield::{soft_heights, squared_error, SoftHeight};
 use powderlab::scene::Scene;
 use powderlab::sim::{SimOptions, Simulation};
 
@@ -44,7 +44,14 @@ fn main() {
         for sharp in [1.0, 4.0, 10.0] {
             let mut line = format!("tau {:.4} mm, w = tau/{sharp}:", tau * 1e3);
             for (phi, xs) in &states {
-                let soft = soft_heights(&grid, xs, base, top, tau, tau / sharp);
+                let edge = tau / sharp;
+                let sh = SoftHeight {
+                    base,
+                    top,
+                    tau,
+                    edge,
+                };
+                let soft = soft_heights(&grid, xs, &sh);
                 line.push_str(&format!(
                     " {phi}°: {:.3}",
                     squared_error(&soft, &heights).0.sqrt() * 1e3

@@ -93,20 +93,15 @@ pub struct HeightObservation {
     pub grid: HeightGrid,
     /// Observed height per pixel (m), NaN where unseen; `grid.len()` entries.
     pub observed: Vec<f64>,
-    /// The height an empty pixel reads (m): the floor.
-    pub base: f64,
-    /// From a grain's centre to its top (m): half a particle spacing.
-    pub top: f64,
-    /// The soft maximum's temperature (m), > 0.
-    pub tau: f64,
-    /// The width of the soft footprint's edge (m), > 0.
-    pub edge: f64,
+    /// How the simulated heights are made soft: the floor an empty pixel reads, a grain's half
+    /// height, the temperature and the footprint's edge.
+    pub soft: heightfield::SoftHeight,
 }
 
 impl HeightObservation {
     /// The simulated soft heights of `xs`.
     pub fn heights(&self, xs: &[DVec3]) -> Vec<f64> {
-        heightfield::soft_heights(&self.grid, xs, self.base, self.top, self.tau, self.edge)
+        heightfield::soft_heights(&self.grid, xs, &self.soft)
     }
 }
 
@@ -156,9 +151,7 @@ impl Loss {
             Loss::HeightField(o) => {
                 return on_all_bodies(xs, |all| {
                     let (l, g_h) = heightfield::squared_error(&o.heights(all), &o.observed);
-                    let g = heightfield::soft_heights_adj(
-                        &o.grid, all, o.base, o.top, o.tau, o.edge, &g_h,
-                    );
+                    let g = heightfield::soft_heights_adj(&o.grid, all, &o.soft, &g_h);
                     (l, g)
                 })
             }

@@ -105,15 +105,25 @@ pub fn hard_heights(grid: &HeightGrid, xs: &[DVec3], base: f64, top: f64) -> Vec
     h
 }
 
+/// The soft height's settings: the height an empty pixel reads (m, the floor), from a grain's
+/// centre to its top (m), the soft maximum's temperature `τ` (m, > 0) and the width of the soft
+/// footprint's edge (m, > 0).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SoftHeight {
+    pub base: f64,
+    pub top: f64,
+    pub tau: f64,
+    pub edge: f64,
+}
+
 /// Per pixel: the largest exponent (the shift) and the sum `S` of the shifted terms.
-fn soft_sums(
-    grid: &HeightGrid,
-    xs: &[DVec3],
-    base: f64,
-    top: f64,
-    tau: f64,
-    edge: f64,
-) -> (Vec<f64>, Vec<f64>) {
+fn soft_sums(grid: &HeightGrid, xs: &[DVec3], sh: &SoftHeight) -> (Vec<f64>, Vec<f64>) {
+    let SoftHeight {
+        base,
+        top,
+        tau,
+        edge,
+    } = *sh;
     // Shift each pixel's exponents by its largest term, so that S ≥ 1 and nothing overflows.
     let mut m = vec![base; grid.len()];
     for p in xs {
@@ -131,18 +141,11 @@ fn soft_sums(
 }
 
 /// The soft height of every pixel (see the module docs), for a temperature `tau` > 0.
-pub fn soft_heights(
-    grid: &HeightGrid,
-    xs: &[DVec3],
-    base: f64,
-    top: f64,
-    tau: f64,
-    edge: f64,
-) -> Vec<f64> {
-    let (m, s) = soft_sums(grid, xs, base, top, tau, edge);
+pub fn soft_heights(grid: &HeightGrid, xs: &[DVec3], sh: &SoftHeight) -> Vec<f64> {
+    let (m, s) = soft_sums(grid, xs, sh);
     m.iter()
         .zip(&s)
-        .map(|(mc, sc)| mc + tau * sc.ln())
+        .map(|(mc, sc)| mc + sh.tau * sc.ln())
         .collect()
 }
 
@@ -154,13 +157,11 @@ pub fn soft_heights(
 pub fn soft_heights_adj(
     grid: &HeightGrid,
     xs: &[DVec3],
-    base: f64,
-    top: f64,
-    tau: f64,
-    edge: f64,
+    sh: &SoftHeight,
     g_h: &[f64],
 ) -> Vec<DVec3> {
-    let (m, s) = soft_sums(grid, xs, base, top, tau, edge);
+    let (m, s) = soft_sums(grid, xs, sh);
+    let SoftHeight { top, tau, edge, .. } = *sh;
     xs.iter()
         .map(|p| {
             let mut g = DVec3::ZERO;
@@ -225,13 +226,16 @@ mod tests {
             nz: 3,
         };
         let xs = cloud();
-        let (base, top, tau) = (0.0, 0.001, 0.002);
+        let sh = SoftHeight {
+            base: 0.0,
+            top: 0.001,
+            tau: 0.002,
+            edge: 0.001,
+        };
         let obs: Vec<f64> = (0..grid.len()).map(|c| 0.02 + 0.001 * c as f64).collect();
-        let edge = 0.5 * tau;
-        let loss =
-            |xs: &[DVec3]| squared_error(&soft_heights(&grid, xs, base, top, tau, edge), &obs).0;
-        let (_, g_h) = squared_error(&soft_heights(&grid, &xs, base, top, tau, edge), &obs);
-        let g = soft_heights_adj(&grid, &xs, base, top, tau, edge, &g_h);
+        let loss = |xs: &[DVec3]| squared_error(&soft_heights(&grid, xs, &sh), &obs).0;
+        let (_, g_h) = squared_error(&soft_heights(&grid, &xs, &sh), &obs);
+        let g = soft_heights_adj(&grid, &xs, &sh, &g_h);
         let eps = 1e-7;
         let mut worst: f64 = 0.0;
         for i in 0..xs.len() {
@@ -258,7 +262,13 @@ mod tests {
         };
         // Two grains at pixel 0's centre; nothing reaches pixel 2.
         let xs = [DVec3::new(0.0, 0.03, 0.0), DVec3::new(0.0, 0.02, 0.0)];
-        let h = soft_heights(&grid, &xs, 0.0, 0.001, 1e-5, 1e-6);
+        let sh = SoftHeight {
+            base: 0.0,
+            top: 0.001,
+            tau: 1e-5,
+            edge: 1e-6,
+        };
+        let h = soft_heights(&grid, &xs, &sh);
         assert!((h[0] - 0.031).abs() < 1e-6, "{h:?}");
         assert!(h[2].abs() < 1e-12, "{h:?}");
         let hard = hard_heights(&grid, &xs, 0.0, 0.001);

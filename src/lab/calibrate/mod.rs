@@ -36,6 +36,7 @@ use crate::adjoint::loss::HeightObservation;
 use crate::adjoint::tape::{gradient_with, Loss, Tape, Term};
 use crate::lab::optim::report::BACKWARD_COST;
 use crate::math::chamfer;
+use crate::math::heightfield::SoftHeight;
 use crate::scene::Scene;
 use crate::sim::{SimOptions, Simulation};
 use anyhow::Context;
@@ -138,10 +139,12 @@ pub fn observation_loss(
                 Loss::HeightField(HeightObservation {
                     grid: *grid,
                     observed: heights.clone(),
-                    base: scene.floor_height(),
-                    top: 0.5 * h,
-                    tau: tau.unwrap_or(TAU_PER_SPACING * h),
-                    edge: tau.unwrap_or(TAU_PER_SPACING * h) / EDGE_SHARPNESS,
+                    soft: SoftHeight {
+                        base: scene.floor_height(),
+                        top: 0.5 * h,
+                        tau: tau.unwrap_or(TAU_PER_SPACING * h),
+                        edge: tau.unwrap_or(TAU_PER_SPACING * h) / EDGE_SHARPNESS,
+                    },
                 }),
                 seen,
             ))
