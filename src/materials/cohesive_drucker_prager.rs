@@ -15,11 +15,9 @@ use super::{
     Updated, POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
-use crate::math::return_map::lanes::Cone;
 use crate::math::return_map::{
-    cohesion_trace, cohesion_trace_adj, dp_alpha, dp_alpha_adj, dp_project_cohesive,
-    dp_project_cohesive_adj, hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj,
-    lame, stretch,
+    cohesion_trace, cohesion_trace_adj, dp_alpha, dp_alpha_adj, dp_project_cohesive_adj, dp_update,
+    hencky_adj, kirchhoff_principal, kirchhoff_principal_adj, lame, Cone, DpUpdate,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -60,14 +58,6 @@ struct Cache {
     d_alpha: f64,
 }
 
-/// The forward update and the intermediates its adjoint reads (one function for both).
-struct Projected {
-    eps: DVec3,
-    eps_new: DVec3,
-    sigma_new: DVec3,
-    tau: DVec3,
-}
-
 impl CohesiveDruckerPrager {
     pub fn new(youngs_modulus: f64, poisson_ratio: f64, friction_deg: f64, cohesion: f64) -> Self {
         Self {
@@ -86,23 +76,26 @@ impl CohesiveDruckerPrager {
             .expect("CohesiveDruckerPrager::prepared() is called when the body is built")
     }
 
-    #[inline(always)]
-    fn project(&self, sigma: DVec3) -> Projected {
+    /// The cone, its apex at the cohesion's strain trace.
+    fn cone(&self) -> Cone {
         let c = self.cache();
-        let eps = hencky(sigma);
-        let (eps_new, _, _) = dp_project_cohesive(eps, c.mu, c.lambda, c.alpha, c.tr_c);
-        Projected {
-            eps,
-            eps_new,
-            sigma_new: stretch(eps_new),
-            tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
+        Cone {
+            mu: c.mu,
+            lambda: c.lambda,
+            tr_c: c.tr_c,
         }
+    }
+
+    /// The forward update and the intermediates its adjoint reads (one function for both).
+    #[inline(always)]
+    fn project(&self, sigma: DVec3) -> DpUpdate {
+        dp_update(sigma, self.cache().alpha, self.cone())
     }
 
     fn adjoint_of(
         &self,
         sigma: DVec3,
-        p: &Projected,
+        p: &DpUpdate,
         g_sigma_new: DVec3,
         g_tau: DVec3,
     ) -> UpdateAdj {
@@ -219,13 +212,7 @@ impl Material for CohesiveDruckerPrager {
     /// Four particles at a time in vector registers (`return_map::lanes`), each the scalar
     /// update's result to the bit.
     fn update_many(&self, g: Group<'_>) {
-        let c = self.cache();
-        let cone = Cone {
-            mu: c.mu,
-            lambda: c.lambda,
-            tr_c: c.tr_c,
-        };
-        update_many_lanes(g, cone, false, |_| c.alpha);
+        update_many_lanes(g, self.cone(), false, |_| self.cache().alpha);
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches.
@@ -243,9 +230,10 @@ impl Material for CohesiveDruckerPrager {
     ) -> UpdateAdj {
         let c = self.cache();
         let [eps, eps_new, sigma_new] = *saved;
-        let p = Projected {
+        let p = DpUpdate {
             eps,
             eps_new,
+            dq: 0.0,
             sigma_new,
             tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
         };
@@ -257,6 +245,7 @@ impl Material for CohesiveDruckerPrager {
 mod tests {
     use super::*;
     use crate::materials::drucker_prager::DruckerPrager;
+    use crate::math::return_map::{dp_project_cohesive, hencky};
 
     const ADJ_REL_TOL: f64 = 1e-6;
     /// The round-off of a loss of order one differenced over a step of 1e-6: where a parameter

@@ -6,10 +6,10 @@ use super::{
     Updated, POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
-use crate::math::return_map::lanes::{dp_update_group, Cone, LANES};
+use crate::math::return_map::lanes::{dp_update_group, LANES};
 use crate::math::return_map::{
-    dp_alpha, dp_alpha_adj, dp_project, dp_project_adj, hardened_friction_deg, hencky, hencky_adj,
-    kirchhoff_principal, kirchhoff_principal_adj, lame, stretch,
+    dp_alpha, dp_alpha_adj, dp_project_adj, dp_update, hardened_friction_deg, hencky_adj,
+    kirchhoff_principal, kirchhoff_principal_adj, lame, Cone, DpUpdate,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -50,32 +50,14 @@ struct Cache {
     d_alpha: f64,
 }
 
-/// The forward update at `σ` with cone coefficient `alpha`, with the intermediates its adjoint
-/// reads. One function for [`Material::update`] and [`Material::update_adj`], so the update the
-/// adjoint recomputes is the forward's bit for bit.
-struct Projected {
-    /// Hencky strain `ln σ`.
-    eps: DVec3,
-    /// The strain after the return mapping.
-    eps_new: DVec3,
-    /// Plastic increment of the hardening variable.
-    dq: f64,
-    /// `exp ε′`.
-    sigma_new: DVec3,
-    /// Principal Kirchhoff stresses of `ε′`.
-    tau: DVec3,
-}
-
-#[inline(always)]
-fn project(c: &Cache, sigma: DVec3, alpha: f64) -> Projected {
-    let eps = hencky(sigma);
-    let (eps_new, dq, _) = dp_project(eps, c.mu, c.lambda, alpha);
-    Projected {
-        eps,
-        eps_new,
-        dq,
-        sigma_new: stretch(eps_new),
-        tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
+impl Cache {
+    /// The cone without cohesion.
+    fn cone(&self) -> Cone {
+        Cone {
+            mu: self.mu,
+            lambda: self.lambda,
+            tr_c: 0.0,
+        }
     }
 }
 
@@ -234,16 +216,7 @@ impl Material for DruckerPrager {
     /// update's result to the bit.
     fn update_many(&self, g: Group<'_>) {
         let c = self.cache.as_ref().expect("prepared");
-        let alpha_at = |q: f64| match self.hardening {
-            None => c.alpha,
-            Some(h) => dp_alpha(hardened_friction_deg(h.into(), q).clamp(0.0, 89.0)),
-        };
-        let cone = Cone {
-            mu: c.mu,
-            lambda: c.lambda,
-            tr_c: 0.0,
-        };
-        update_many_lanes(g, cone, true, alpha_at);
+        update_many_lanes(g, c.cone(), true, |q| self.alpha_at(q));
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches (see
@@ -251,7 +224,12 @@ impl Material for DruckerPrager {
     /// differentiated (the backward pass refuses such scenes).
     fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
         let c = self.cache.as_ref().expect("prepared");
-        self.adjoint_of(sigma, &project(c, sigma, c.alpha), g_sigma_new, g_tau)
+        self.adjoint_of(
+            sigma,
+            &dp_update(sigma, c.alpha, c.cone()),
+            g_sigma_new,
+            g_tau,
+        )
     }
 
     /// [`Material::update_adj`] from the saved `[ε, ε′, exp ε′]`; `τ_p` is recomputed from `ε′`
@@ -266,7 +244,7 @@ impl Material for DruckerPrager {
     ) -> UpdateAdj {
         let c = self.cache.as_ref().expect("prepared");
         let [eps, eps_new, sigma_new] = *saved;
-        let p = Projected {
+        let p = DpUpdate {
             eps,
             eps_new,
             dq: 0.0,
@@ -278,20 +256,25 @@ impl Material for DruckerPrager {
 }
 
 impl DruckerPrager {
+    /// The cone coefficient `α` at hardening state `q` (the friction angle's, without
+    /// hardening).
+    #[inline(always)]
+    fn alpha_at(&self, q: f64) -> f64 {
+        let c = self.cache.as_ref().expect("prepared");
+        match self.hardening {
+            None => c.alpha,
+            Some(h) => dp_alpha(hardened_friction_deg(h.into(), q).clamp(0.0, 89.0)),
+        }
+    }
+
     /// The forward update at `σ` with the friction angle of hardening state `q`.
     #[inline(always)]
-    fn project_at(&self, sigma: DVec3, q: f64) -> Projected {
+    fn project_at(&self, sigma: DVec3, q: f64) -> DpUpdate {
         let c = self
             .cache
             .as_ref()
             .expect("DruckerPrager::prepared() is called when the body is built");
-        let alpha = match self.hardening {
-            None => c.alpha,
-            Some((h0, h1, h2, h3)) => {
-                dp_alpha(hardened_friction_deg([h0, h1, h2, h3], q).clamp(0.0, 89.0))
-            }
-        };
-        project(c, sigma, alpha)
+        dp_update(sigma, self.alpha_at(q), c.cone())
     }
 
     /// The adjoint of the update `p` made at `σ` (see [`Material::update_adj`]).
@@ -299,7 +282,7 @@ impl DruckerPrager {
     fn adjoint_of(
         &self,
         sigma: DVec3,
-        p: &Projected,
+        p: &DpUpdate,
         g_sigma_new: DVec3,
         g_tau: DVec3,
     ) -> UpdateAdj {
@@ -328,6 +311,7 @@ impl DruckerPrager {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::math::return_map::{dp_project, hencky};
 
     /// f64 central differences away from the return-mapping kinks.
     const FD_EPS: f64 = 1e-7;

@@ -1,14 +1,14 @@
-//! The Drucker–Prager update of a group of particles at once: [`super::hencky`],
-//! [`super::dp_project`], [`super::stretch`] and [`super::kirchhoff_principal`] written again
-//! over [`F64Bits`] lanes, operation for operation, so that each lane's result is the scalar
-//! functions' to the bit (`lanes_equal_the_scalar_update` checks all three cases and the
-//! guards). The branches of the return mapping become selects: every lane computes the tip,
+//! The Drucker–Prager update of a group of particles at once: [`super::dp_update`] (that is
+//! [`super::hencky`], [`super::dp_project_cohesive`], [`super::stretch`] and
+//! [`super::kirchhoff_principal`]) written again over [`F64Bits`] lanes, operation for
+//! operation, so that each lane's result is the scalar function's to the bit
+//! (`lanes_equal_the_scalar_update` checks all three cases, the guards and a cohesive cone). The branches of the return mapping become selects: every lane computes the tip,
 //! the elastic and the yield-surface results and keeps its own case's.
 //!
 //! [`dp_update_group`] runs four particles to an AVX register where the CPU has AVX2, which
 //! takes the `ln` and `exp` (`crate::math::elementary`) out of the scalar loop.
 
-use super::{DEV_NORM_SQ_MIN, SIGMA_MIN};
+use super::{Cone, DpUpdate, DEV_NORM_SQ_MIN, SIGMA_MIN};
 use crate::math::elementary::{exp_lanes, ln_lanes};
 use crate::math::lanes::{Arr, F64Bits, Vector};
 use glam::DVec3;
@@ -16,32 +16,16 @@ use glam::DVec3;
 /// Particles in a group.
 pub const LANES: usize = 4;
 
-/// A Drucker–Prager cone's constants, besides each particle's `α`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Cone {
-    /// The Lamé parameters.
-    pub mu: f64,
-    pub lambda: f64,
-    /// The apex's strain trace ([`super::cohesion_trace`]; 0 without cohesion).
-    pub tr_c: f64,
-}
-
-/// One particle's Drucker–Prager update: what `materials::DruckerPrager` returns and saves.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DpUpdate {
-    /// Hencky strain `ln σ`.
-    pub eps: DVec3,
-    /// The strain after the return mapping.
-    pub eps_new: DVec3,
-    /// Increment of the hardening variable.
-    pub dq: f64,
-    /// `exp ε′`.
-    pub sigma_new: DVec3,
-    /// Principal Kirchhoff stresses of `ε′`.
-    pub tau: DVec3,
-}
-
 type V3<V> = [V; 3];
+
+/// [`DpUpdate`] of each lane, by axis.
+struct LaneUpdate<V> {
+    eps: V3<V>,
+    eps_new: V3<V>,
+    dq: V,
+    sigma_new: V3<V>,
+    tau: V3<V>,
+}
 
 #[inline(always)]
 fn sum<V: Vector>(a: V3<V>) -> V {
@@ -58,7 +42,7 @@ fn dot<V: Vector>(a: V3<V>, b: V3<V>) -> V {
 /// [`super::dp_project_cohesive`]). Loops, not closures: a closure that LLVM
 /// declines to inline is compiled without the caller's AVX, and its intrinsics become calls.
 #[inline(always)]
-fn dp_update_body<V: F64Bits>(sigma: V3<V>, alpha: V, cone: Cone) -> [V3<V>; 5] {
+fn dp_update_body<V: F64Bits>(sigma: V3<V>, alpha: V, cone: Cone) -> LaneUpdate<V> {
     let Cone { mu, lambda, tr_c } = cone;
     let zero = V::splat(0.0);
     // hencky: glam's max keeps the bound where σ is not above it (NaN included).
@@ -107,7 +91,13 @@ fn dp_update_body<V: F64Bits>(sigma: V3<V>, alpha: V, cone: Cone) -> [V3<V>; 5] 
         sigma_new[a] = exp_lanes(eps_new[a]);
         tau[a] = two_mu * eps_new[a] + volumetric;
     }
-    [eps, eps_new, [dq, zero, zero], sigma_new, tau]
+    LaneUpdate {
+        eps,
+        eps_new,
+        dq,
+        sigma_new,
+        tau,
+    }
 }
 
 /// [`dp_update_body`] on `LANES` particles given as vectors and scalars.
@@ -129,19 +119,22 @@ fn dp_update_packed<V: F64Bits>(
         V::load(&by_axis[2]),
     ];
     let r = dp_update_body(sv, V::load(alpha), cone);
-    let mut out = [[[0.0; LANES]; 3]; 5];
-    for q in 0..5 {
+    let mut out = [[[0.0; LANES]; 3]; 4];
+    let by_field = [&r.eps, &r.eps_new, &r.sigma_new, &r.tau];
+    for q in 0..4 {
         for a in 0..3 {
-            r[q][a].store(&mut out[q][a]);
+            by_field[q][a].store(&mut out[q][a]);
         }
     }
+    let mut dq = [0.0; LANES];
+    r.dq.store(&mut dq);
     let vec = |q: usize, l: usize| DVec3::new(out[q][0][l], out[q][1][l], out[q][2][l]);
     std::array::from_fn(|l| DpUpdate {
         eps: vec(0, l),
         eps_new: vec(1, l),
-        dq: out[2][0][l],
-        sigma_new: vec(3, l),
-        tau: vec(4, l),
+        dq: dq[l],
+        sigma_new: vec(2, l),
+        tau: vec(3, l),
     })
 }
 
@@ -170,22 +163,8 @@ fn dp_update_avx2(sigma: &[DVec3; LANES], alpha: &[f64; LANES], cone: Cone) -> [
 
 #[cfg(test)]
 mod tests {
-    use super::super::{
-        cohesion_trace, dp_alpha, dp_project_cohesive, hencky, kirchhoff_principal, lame, stretch,
-    };
+    use super::super::{cohesion_trace, dp_alpha, dp_project_cohesive, dp_update, hencky, lame};
     use super::*;
-
-    fn scalar(sigma: DVec3, mu: f64, lambda: f64, alpha: f64, tr_c: f64) -> DpUpdate {
-        let eps = hencky(sigma);
-        let (eps_new, dq, _) = dp_project_cohesive(eps, mu, lambda, alpha, tr_c);
-        DpUpdate {
-            eps,
-            eps_new,
-            dq,
-            sigma_new: stretch(eps_new),
-            tau: kirchhoff_principal(eps_new, mu, lambda),
-        }
-    }
 
     fn bits(u: &DpUpdate) -> Vec<u64> {
         [u.eps, u.eps_new, u.sigma_new, u.tau]
@@ -243,7 +222,7 @@ mod tests {
                 let portable = dp_update_packed::<Arr<f64, LANES>>(&sigma, &alpha, cone);
                 let dispatched = dp_update_group(&sigma, &alpha, cone);
                 for l in 0..LANES {
-                    let want = bits(&scalar(sigma[l], mu, lambda, alpha[l], tr_c));
+                    let want = bits(&dp_update(sigma[l], alpha[l], cone));
                     assert_eq!(bits(&portable[l]), want, "portable lane at {:?}", sigma[l]);
                     assert_eq!(bits(&dispatched[l]), want, "AVX lane at {:?}", sigma[l]);
                 }

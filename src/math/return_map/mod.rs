@@ -131,6 +131,48 @@ pub fn dp_project_cohesive(
     (e + shift, dq, case)
 }
 
+/// A Drucker–Prager cone's constants, besides each particle's `α`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cone {
+    /// The Lamé parameters.
+    pub mu: f64,
+    pub lambda: f64,
+    /// The apex's strain trace ([`cohesion_trace`]; 0 without cohesion).
+    pub tr_c: f64,
+}
+
+/// One particle's Drucker–Prager update, with the intermediates its adjoint reads.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DpUpdate {
+    /// Hencky strain `ln σ`.
+    pub eps: DVec3,
+    /// The strain after the return mapping.
+    pub eps_new: DVec3,
+    /// Increment of the hardening variable.
+    pub dq: f64,
+    /// `exp ε′`.
+    pub sigma_new: DVec3,
+    /// Principal Kirchhoff stresses of `ε′`.
+    pub tau: DVec3,
+}
+
+/// The Drucker–Prager update of one particle at singular values `σ` with cone coefficient
+/// `alpha`: [`hencky`], [`dp_project_cohesive`] (at `tr_c = 0`, [`dp_project`] itself),
+/// [`stretch`] and [`kirchhoff_principal`]. Both Drucker–Prager materials run it one particle
+/// at a time, and [`lanes::dp_update_group`] gives its bits four particles at once.
+#[inline(always)]
+pub fn dp_update(sigma: DVec3, alpha: f64, cone: Cone) -> DpUpdate {
+    let eps = hencky(sigma);
+    let (eps_new, dq, _) = dp_project_cohesive(eps, cone.mu, cone.lambda, alpha, cone.tr_c);
+    DpUpdate {
+        eps,
+        eps_new,
+        dq,
+        sigma_new: stretch(eps_new),
+        tau: kirchhoff_principal(eps_new, cone.mu, cone.lambda),
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Adjoints. Each takes the forward inputs plus the adjoint of the outputs and returns the
 // adjoints of the inputs (the caller accumulates them with `+=`).
