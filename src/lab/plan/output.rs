@@ -24,6 +24,9 @@ pub fn plan_file(out: &Path, method: Method, ext: &str) -> PathBuf {
     out.join(format!("plan-{}.{ext}", method.name()))
 }
 
+/// A plan's moves as simulations, built one at a time ([`PlanTask::replay`]).
+pub type Replay<'a> = Box<dyn Iterator<Item = anyhow::Result<crate::sim::Simulation>> + 'a>;
+
 /// A plan that [`plan_into`] runs and writes: multi-scoop dosing ([`Dosing`]) or a push plan
 /// ([`Push`]).
 pub trait PlanTask: Sized {
@@ -35,9 +38,9 @@ pub trait PlanTask: Sized {
     fn open(scene: Scene, seed: u64, journal: &Path, progress: Progress) -> anyhow::Result<Self>;
     /// Plans with `method`: the result and the path from the start.
     fn run(&mut self, method: Method) -> anyhow::Result<(Self::Result, Vec<Self::Node>)>;
-    /// The path's moves (scoops or strokes) simulated again one after another, each from its
-    /// node.
-    fn replay(&self, path: &[Self::Node]) -> Vec<anyhow::Result<crate::sim::Simulation>>;
+    /// The path's moves (scoops or strokes), each built from its node as the recording reaches
+    /// it, so that one simulation is held at a time.
+    fn replay<'a>(&'a self, path: &'a [Self::Node]) -> Replay<'a>;
 }
 
 impl PlanTask for Dosing {
@@ -51,11 +54,12 @@ impl PlanTask for Dosing {
     fn run(&mut self, method: Method) -> anyhow::Result<(PlanResult, Vec<DoseNode>)> {
         Dosing::run(self, method)
     }
-    fn replay(&self, path: &[DoseNode]) -> Vec<anyhow::Result<crate::sim::Simulation>> {
-        path.windows(2)
-            .filter_map(|pair| pair[1].scoop.as_ref().map(|s| (&pair[0], s.theta)))
-            .map(|(n, theta)| self.scoop_simulation(n, theta))
-            .collect()
+    fn replay<'a>(&'a self, path: &'a [DoseNode]) -> Replay<'a> {
+        Box::new(
+            path.windows(2)
+                .filter_map(|pair| pair[1].scoop.as_ref().map(|s| (&pair[0], s.theta)))
+                .map(|(n, theta)| self.scoop_simulation(n, theta)),
+        )
     }
 }
 
@@ -70,11 +74,12 @@ impl PlanTask for Push {
     fn run(&mut self, method: Method) -> anyhow::Result<(PushResult, Vec<PushNode>)> {
         Push::run(self, method)
     }
-    fn replay(&self, path: &[PushNode]) -> Vec<anyhow::Result<crate::sim::Simulation>> {
-        path.windows(2)
-            .filter_map(|pair| pair[1].stroke.as_ref().map(|d| (&pair[0], d.stroke)))
-            .map(|(n, st)| self.stroke_simulation(n, &st))
-            .collect()
+    fn replay<'a>(&'a self, path: &'a [PushNode]) -> Replay<'a> {
+        Box::new(
+            path.windows(2)
+                .filter_map(|pair| pair[1].stroke.as_ref().map(|d| (&pair[0], d.stroke)))
+                .map(|(n, st)| self.stroke_simulation(n, &st)),
+        )
     }
 }
 
@@ -98,10 +103,7 @@ pub fn plan_into<T: PlanTask>(
         serde_json::to_string_pretty(&result)?.as_bytes(),
     )?;
     if record {
-        record_sims(
-            task.replay(&path).into_iter(),
-            &plan_file(out, method, "rrd"),
-        )?;
+        record_sims(task.replay(&path), &plan_file(out, method, "rrd"))?;
     }
     Ok(result)
 }
