@@ -10,8 +10,7 @@ use crate::adjoint::grid_collision::{
 };
 use crate::components::*;
 use crate::systems::particle_collision::{
-    particle_contact, project_particle, project_particle_adj, soft_speed, ContactRule, Reach,
-    MARGIN_CELLS,
+    particle_contact, project_particle, project_particle_adj, ContactRule, Reach, MARGIN_CELLS,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -38,45 +37,32 @@ pub fn particle_collision_adjoint(
     cs.sort_by_key(|c| c.0.index);
     let dt = params.dt_sub;
     let margin = MARGIN_CELLS * grid.dx;
-    // Per collider: its reach and its soft band (0 for the hard projection).
-    let view: Vec<(usize, &Collider, &ColliderPose, Reach, f64)> = cs
+    // Per collider: its reach and its projection's rule.
+    let view: Vec<(usize, &Collider, &ColliderPose, Reach, ContactRule)> = cs
         .iter()
         .enumerate()
         .filter(|(_, c)| c.0.particle_contact)
-        .map(|(i, (c, p, _))| {
-            let soft = soft_speed(c.soft_particle_contact, margin, dt);
-            (i, *c, *p, Reach::of(c, p), soft)
-        })
+        .map(|(i, (c, p, _))| (i, *c, *p, Reach::of(c, p), ContactRule::of(c, margin, dt)))
         .collect();
     for (x, input, mut gx, mut gv) in &mut bodies {
         let particle = |i: usize, g: &mut DVec3, gxi: &mut DVec3, acc: &mut ChunkAdj| {
             let xp = x.0[i];
             let mut v = input.0[i];
-            let mut hits =
-                [(0usize, DVec3::ZERO, 0.0, DVec3::ZERO, DVec3::ZERO, 0.0); MAX_COLLIDERS];
+            // Each hit: the collider's place in `view`, the velocity it met and the hit.
+            let mut hits = [(0usize, DVec3::ZERO, (0.0, DVec3::ZERO, DVec3::ZERO)); MAX_COLLIDERS];
             let mut count = 0;
-            for &(ci, c, pose, reach, soft) in &view {
-                let Some((phi, n, vb)) =
-                    particle_contact(c, pose, &reach, xp, v, dt, margin + soft * dt)
-                else {
+            for (k, (_, c, pose, reach, rule)) in view.iter().enumerate() {
+                let Some(hit) = particle_contact(c, pose, reach, xp, v, dt, rule.reach()) else {
                     continue;
                 };
-                hits[count] = (ci, v, phi, n, vb, soft);
-                v = project_particle(
-                    v,
-                    (phi, n, vb),
-                    &ContactRule::new(dt, margin, c.contact, c.friction, soft),
-                );
+                hits[count] = (k, v, hit);
+                v = project_particle(v, hit, rule);
                 count += 1;
             }
-            for &(ci, vin, phi, n, vb, soft) in hits[..count].iter().rev() {
-                let (c, pose) = (cs[ci].0, cs[ci].1);
-                let a = project_particle_adj(
-                    vin,
-                    (phi, n, vb),
-                    &ContactRule::new(dt, margin, c.contact, c.friction, soft),
-                    *g,
-                );
+            for &(k, vin, hit) in hits[..count].iter().rev() {
+                let (ci, c, pose, _, rule) = &view[k];
+                let (ci, n) = (*ci, hit.1);
+                let a = project_particle_adj(vin, hit, rule, *g);
                 *g = a.v;
                 let h = world_hessian(&c.shape, pose, xp);
                 acc[ci].friction += a.mu;

@@ -91,6 +91,19 @@ impl ContactRule {
             soft,
         }
     }
+
+    /// Collider `c`'s rule at contact margin `margin` and substep `dt`, its soft band from
+    /// its `soft_particle_contact`.
+    pub fn of(c: &Collider, margin: f64, dt: f64) -> Self {
+        let soft = soft_speed(c.soft_particle_contact, margin, dt);
+        Self::new(dt, margin, c.contact, c.friction, soft)
+    }
+
+    /// How far from the surface a particle is looked at: the margin plus the soft band's
+    /// reach over a substep.
+    pub fn reach(&self) -> f64 {
+        self.margin + self.soft * self.dt
+    }
 }
 
 /// Velocity of a particle after the non-penetration projection (see the module docs).
@@ -279,27 +292,18 @@ pub fn particle_collision(
 ) {
     let dt = params.dt_sub;
     let margin = MARGIN_CELLS * grid.dx;
-    // Per collider: its reach and its soft band (0 for the hard projection).
+    // Per collider: its reach and its projection's rule.
     let mut cs: Vec<_> = colliders
         .iter()
         .filter(|c| c.0.particle_contact)
-        .map(|(c, pose)| {
-            let soft = soft_speed(c.soft_particle_contact, margin, dt);
-            (c, pose, Reach::of(c, pose), soft)
-        })
+        .map(|(c, pose)| (c, pose, Reach::of(c, pose), ContactRule::of(c, margin, dt)))
         .collect();
     cs.sort_by_key(|c| c.0.index);
     for (x, mut v) in &mut bodies {
         v.0.par_iter_mut().zip(x.0.par_iter()).for_each(|(v, &x)| {
-            for &(c, pose, ref reach, soft) in &cs {
-                if let Some((phi, n, vb)) =
-                    particle_contact(c, pose, reach, x, *v, dt, margin + soft * dt)
-                {
-                    *v = project_particle(
-                        *v,
-                        (phi, n, vb),
-                        &ContactRule::new(dt, margin, c.contact, c.friction, soft),
-                    );
+            for (c, pose, reach, rule) in &cs {
+                if let Some(hit) = particle_contact(c, pose, reach, x, *v, dt, rule.reach()) {
+                    *v = project_particle(*v, hit, rule);
                 }
             }
         });
