@@ -49,12 +49,23 @@ pub fn frame_metrics(world: &mut World, target: Option<&str>) -> FrameMetrics {
     });
     let mut m = FrameMetrics::default();
     let mut sum_y = 0.0;
-    let mut q = world.query::<(&Body, &Position, &Velocity, &DeformationGradient)>();
-    for (b, x, v, f) in q.iter(world) {
+    let mut q = world.query::<(
+        &Body,
+        &Position,
+        &Velocity,
+        &DeformationGradient,
+        Option<&Parked>,
+    )>();
+    for (b, x, v, f, parked) in q.iter(world) {
+        // Parked particles (`sim::rest`) count where they rest, with the state they keep.
+        let (px, (pv, _, pf)) = parked.map_or((&[][..], (&[][..], &[][..], &[][..])), |p| {
+            (p.positions(), p.state())
+        });
         let (mu, lambda) = b.lame;
-        m.elastic_energy += b.particle_volume * elastic_energy_sum(&f.0, mu, lambda);
-        m.particles += x.0.len();
-        for (x, v) in x.0.iter().zip(&v.0) {
+        m.elastic_energy += b.particle_volume
+            * (elastic_energy_sum(&f.0, mu, lambda) + elastic_energy_sum(pf, mu, lambda));
+        m.particles += x.0.len() + px.len();
+        for (x, v) in x.0.iter().zip(&v.0).chain(px.iter().zip(pv)) {
             sum_y += x.y;
             let s2 = v.length_squared();
             m.kinetic_energy += 0.5 * b.particle_mass * s2;

@@ -148,16 +148,22 @@ impl Recorder {
         let dt = world.resource::<SimParams>().dt;
         self.rec.set_time_sequence("step", step as i64);
         self.rec.set_duration_secs("sim_time", step as f64 * dt);
-        let mut q = world.query::<(&Body, &Position, &Velocity)>();
+        let mut q = world.query::<(&Body, &Position, &Velocity, Option<&Parked>)>();
         let mut bodies: Vec<_> = q.iter(world).collect();
         bodies.sort_by_key(|b| b.0.index);
-        for (b, x, v) in bodies {
+        for (b, x, v, parked) in bodies {
+            // Parked particles (`sim::rest`) rest where they are, at zero speed.
+            let parked = parked.map_or(&[][..], |p| p.positions());
             let pts: Vec<[f32; 3]> =
                 x.0.iter()
+                    .chain(parked)
                     .map(|p| [p.x as f32, p.y as f32, p.z as f32])
                     .collect();
+            let at_rest = std::iter::repeat_n(glam::DVec3::ZERO, parked.len());
             let cols: Vec<rerun::Color> =
                 v.0.iter()
+                    .copied()
+                    .chain(at_rest)
                     .map(|v| {
                         let c = speed_colour(v.length(), 0.5);
                         rerun::Color::from_unmultiplied_rgba(c[0], c[1], c[2], c[3])

@@ -12,16 +12,8 @@ use powderlab::sim::{SimOptions, Simulation};
 
 mod common;
 
-/// `vial_weighing.ron` at dx = 2 mm over the same domain, with walls two cells thick (the
-/// vial stands 4.5 mm from the domain's side), and the balance noiseless unless `noise_mg`.
 fn coarse(noise_mg: f64) -> Scene {
-    let mut s = common::load("vial_weighing.ron");
-    s.simulation.dx = 0.002;
-    s.simulation.cells = (36, 24, 16);
-    s.simulation.walls.cells = 2;
-    s.balance.as_mut().unwrap().noise_mg = noise_mg;
-    s.validate().unwrap();
-    s
+    common::coarse_weighing(noise_mg)
 }
 
 fn run(scene: &Scene, target_mg: f64, d: &Dispense) -> DoseReport {

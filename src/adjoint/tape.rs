@@ -195,6 +195,13 @@ fn gradient_in_pool(
     terms: &[Term],
     tape: Tape,
 ) -> Result<Gradients, AdjointError> {
+    if sim.rests() {
+        return Err(AdjointError::NotDifferentiable(
+            "the simulation sets resting powder aside (SimOptions::rest), which the tape does \
+             not record; build it with rest: None for a gradient"
+                .into(),
+        ));
+    }
     if let Some(t) = terms.iter().find(|t| t.step() > steps) {
         return Err(AdjointError::NotDifferentiable(format!(
             "a loss term at step {} of a {steps}-step pass",

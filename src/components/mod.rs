@@ -9,6 +9,7 @@ pub mod adjoint;
 pub mod balance;
 pub mod collider;
 pub mod grid;
+pub mod parked;
 pub mod particles;
 pub mod sim;
 
@@ -16,5 +17,6 @@ pub use adjoint::*;
 pub use balance::*;
 pub use collider::*;
 pub use grid::*;
+pub use parked::{Cells, Parked};
 pub use particles::*;
 pub use sim::*;

@@ -310,9 +310,18 @@ impl Build {
                 ))
             })?;
         }
+        if opts.rest.is_some() {
+            let mut q = world.query_filtered::<Entity, With<Body>>();
+            let bodies: Vec<Entity> = q.iter(&world).collect();
+            for e in bodies {
+                world.entity_mut(e).insert(Parked::default());
+            }
+        }
         Ok(Simulation {
             world,
             schedule,
+            rest: opts.rest,
+            particle_substeps: 0.0,
             instruments,
             stage_schedules,
             pool,

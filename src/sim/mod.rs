@@ -6,6 +6,7 @@
 //! from that; [`Simulation`] steps one.
 
 pub mod build;
+pub mod rest;
 
 pub use crate::scene::{StabilityReport, MAX_AUTO_SUBSTEPS};
 pub use build::Build;
@@ -30,6 +31,8 @@ pub struct SimOptions {
     /// (`threads` is then ignored). For many simulations side by side, such as the rollouts of
     /// `optimize`: the caller's pool balances them, and an idle worker helps a running one.
     pub shared_pool: bool,
+    /// Set resting powder aside while nothing comes near it ([`rest`]); forward runs only.
+    pub rest: Option<rest::RestRule>,
 }
 
 impl SimOptions {
@@ -61,6 +64,10 @@ pub struct Simulation {
     /// The instruments (a balance), run once after each global step; `None` without any.
     instruments: Option<Schedule>,
     stage_schedules: Option<Vec<(&'static str, Schedule)>>,
+    /// Resting powder set aside between steps, where the options ask for it.
+    rest: Option<rest::RestRule>,
+    /// Particle-substeps simulated so far: the awake particles of each substep.
+    particle_substeps: f64,
     /// The simulation's own worker pool; `None` runs in the caller's (`SimOptions::shared_pool`).
     pub(crate) pool: Option<rayon::ThreadPool>,
     pub plan: SubstepPlan,
@@ -174,6 +181,10 @@ impl Simulation {
         let (dt, dt_sub) = (self.params().dt, self.params().dt_sub);
         self.world.resource_mut::<Clock>().substep = 0;
         let t0 = self.clock().step as f64 * dt;
+        if self.rest.is_some() {
+            rest::before_step(&mut self.world);
+        }
+        self.particle_substeps += (self.awake_particle_count() * n) as f64;
         for k in 0..n {
             before(&mut self.world, t0 + k as f64 * dt_sub);
             self.substep()?;
@@ -183,6 +194,9 @@ impl Simulation {
         clock.substep = 0;
         if let Some(i) = &mut self.instruments {
             i.run(&mut self.world);
+        }
+        if let Some(rule) = self.rest {
+            rest::after_step(&mut self.world, &rule);
         }
         Ok(())
     }
@@ -231,7 +245,8 @@ impl Simulation {
             .map(|(_, p)| p.pose)
     }
 
-    /// Particle state of every body, in scene order.
+    /// Particle state of every body, in scene order (parked particles included, in their
+    /// places).
     pub fn body_states(&mut self) -> Vec<BodyState> {
         let mut q = self.world.query::<(
             &Body,
@@ -239,30 +254,60 @@ impl Simulation {
             &Velocity,
             &AffineVelocity,
             &DeformationGradient,
+            Option<&Parked>,
         )>();
         let mut out: Vec<(usize, BodyState)> = q
             .iter(&self.world)
-            .map(|(b, x, v, c, f)| {
-                (
-                    b.index,
-                    BodyState {
+            .map(|(b, x, v, c, f, parked)| {
+                let state = match parked {
+                    Some(p) if !p.is_empty() => {
+                        let (pv, pc, pf) = p.state();
+                        BodyState {
+                            name: b.name.clone(),
+                            x: p.merged(&x.0, p.positions()),
+                            v: p.merged(&v.0, pv),
+                            c: p.merged(&c.0, pc),
+                            f: p.merged(&f.0, pf),
+                        }
+                    }
+                    _ => BodyState {
                         name: b.name.clone(),
                         x: x.0.clone(),
                         v: v.0.clone(),
                         c: c.0.clone(),
                         f: f.0.clone(),
                     },
-                )
+                };
+                (b.index, state)
             })
             .collect();
         out.sort_by_key(|e| e.0);
         out.into_iter().map(|e| e.1).collect()
     }
 
-    /// Total particles.
+    /// Total particles, parked ones included.
     pub fn particle_count(&mut self) -> usize {
+        let mut q = self.world.query::<(&Position, Option<&Parked>)>();
+        q.iter(&self.world)
+            .map(|(x, p)| x.0.len() + p.map_or(0, |p| p.len()))
+            .sum()
+    }
+
+    /// The particles the stages visit: all but the parked ones.
+    pub fn awake_particle_count(&mut self) -> usize {
         let mut q = self.world.query::<&Position>();
         q.iter(&self.world).map(|x| x.0.len()).sum()
+    }
+
+    /// Whether resting powder is set aside between steps ([`rest`]): forward runs only.
+    pub fn rests(&self) -> bool {
+        self.rest.is_some()
+    }
+
+    /// Particle-substeps simulated by [`Simulation::step`] so far: each step's awake particles
+    /// times its substeps.
+    pub fn particle_substeps(&self) -> f64 {
+        self.particle_substeps
     }
 
     /// The work of `steps` steps at the current substeps, particles and grid (what `simulate`

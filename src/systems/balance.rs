@@ -8,11 +8,17 @@
 use crate::components::*;
 use bevy_ecs::prelude::*;
 
-/// The mass (g) of the particles inside `balance`'s boat, summed in body and particle order.
-pub fn load_g(balance: &Balance, bodies: &[(&Body, &Position)]) -> f64 {
+/// The mass (g) of the particles inside `balance`'s boat, summed in body and particle order;
+/// a body's parked particles (`crate::sim::rest`) rest where they are and weigh as well.
+pub fn load_g(balance: &Balance, bodies: &[(&Body, &Position, Option<&Parked>)]) -> f64 {
     let mut kg = 0.0;
-    for (b, x) in bodies {
-        let n = x.0.iter().filter(|p| balance.boat.inside(**p)).count();
+    for (b, x, parked) in bodies {
+        let parked = parked.map_or(&[][..], |p| p.positions());
+        let n =
+            x.0.iter()
+                .chain(parked)
+                .filter(|p| balance.boat.inside(**p))
+                .count();
         kg += n as f64 * b.particle_mass;
     }
     kg * 1e3
@@ -20,11 +26,11 @@ pub fn load_g(balance: &Balance, bodies: &[(&Body, &Position)]) -> f64 {
 
 pub fn balance(
     params: Res<SimParams>,
-    bodies: Query<(&Body, &Position)>,
+    bodies: Query<(&Body, &Position, Option<&Parked>)>,
     mut balances: Query<&mut Balance>,
 ) {
-    let mut list: Vec<(&Body, &Position)> = bodies.iter().collect();
-    list.sort_by_key(|(b, _)| b.index);
+    let mut list: Vec<_> = bodies.iter().collect();
+    list.sort_by_key(|(b, _, _)| b.index);
     for mut b in &mut balances {
         let load = load_g(&b, &list);
         b.update(load, params.dt);
