@@ -3,6 +3,7 @@
 use anyhow::{bail, Result};
 use clap::ValueEnum;
 use powderlab::lab::weigh::{self, Dispense};
+use powderlab::sim::rest::RestRule;
 use powderlab::sim::SimOptions;
 use powderlab::util::{create_output_dir, write_atomic};
 use std::path::PathBuf;
@@ -40,6 +41,10 @@ pub struct Args {
     /// Worker threads (default: the scene's setting; 0 = all cores).
     #[arg(long, value_parser = super::threads_arg)]
     threads: Option<usize>,
+    /// Simulate the resting powder in every step instead of setting it aside while nothing
+    /// comes near it (`sim::rest`): the reference the rest rule is measured against.
+    #[arg(long)]
+    no_rest: bool,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -69,7 +74,10 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(dir) = &a.out {
         create_output_dir(dir, "--out")?;
     }
-    let opts = SimOptions::threads(a.threads);
+    let opts = SimOptions {
+        rest: (!a.no_rest).then(RestRule::default),
+        ..SimOptions::threads(a.threads)
+    };
     let rrd = a.out.as_ref().map(|d| d.join("weigh.rrd"));
     let bar = super::bar(0, a.json);
     bar.set_message("steps");
@@ -94,6 +102,7 @@ pub fn run(a: Args) -> Result<()> {
         "sim_s": r.sim_s,
         "wall_s": r.wall_s,
         "particle_substeps": r.particle_substeps,
+        "rest": r.rest,
         "grain_mg": r.grain_mg,
         "dispense": d,
     });

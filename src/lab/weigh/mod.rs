@@ -223,7 +223,12 @@ pub struct DoseReport {
     #[serde(default)]
     pub threads: Option<usize>,
     pub steps: usize,
+    /// The particle-substeps the stages visited: resting powder set aside is not counted.
     pub particle_substeps: f64,
+    /// Whether resting powder was set aside while nothing came near it (`sim::rest`); `false`
+    /// in doses kept before the rule existed.
+    #[serde(default)]
+    pub rest: bool,
     /// Mass of one grain (mg).
     pub grain_mg: f64,
     /// The balance's reading (mg), the tilt (degrees) and the spatula's height (mm), one triple
@@ -375,7 +380,11 @@ pub fn dose(
         )?),
         None => None,
     };
-    let r = run_dose(scene, tool, sim, target_mg, d, rec.as_mut(), progress, t0);
+    let r =
+        run_dose(scene, tool, sim, target_mg, d, rec.as_mut(), progress, t0).map(|r| DoseReport {
+            rest: opts.rest.is_some(),
+            ..r
+        });
     match (rec, &r) {
         (Some(rec), Ok(_)) => rec.finish()?,
         (Some(rec), Err(_)) => rec.discard(),
@@ -503,7 +512,6 @@ fn run_dose(
     }
     let delivered = run.sim.balance_load_g().unwrap_or(0.0) * 1e3;
     let steps = run.readings.len();
-    let particles = run.sim.particle_count() as f64;
     let grain_mg = scene.particle_masses().first().copied().unwrap_or(0.0) * 1e6;
     Ok(DoseReport {
         target_mg,
@@ -516,7 +524,8 @@ fn run_dose(
         wall_s: t0.elapsed().as_secs_f64(),
         threads: Some(run.sim.threads()),
         steps,
-        particle_substeps: particles * steps as f64 * run.sim.params().substeps as f64,
+        particle_substeps: run.sim.particle_substeps(),
+        rest: false,
         grain_mg,
         trace: run.trace,
     })

@@ -398,7 +398,11 @@ impl crate::lab::study::Study for WeighingStudy {
     fn run(a: &Args, ctx: crate::lab::study::Ctx) -> anyhow::Result<Vec<Row>> {
         let base = Scene::load(&a.scene)?;
         let d = Dispense::default();
-        let opts = SimOptions::threads(a.threads);
+        // Resting powder is set aside while nothing comes near it (`sim::rest`).
+        let opts = SimOptions {
+            rest: Some(crate::sim::rest::RestRule::default()),
+            ..SimOptions::threads(a.threads)
+        };
         let dir = a
             .common
             .out
@@ -485,6 +489,7 @@ mod tests {
                 threads: Some(1),
                 steps: 1000,
                 particle_substeps: 1e9,
+                rest: true,
                 grain_mg: 0.1,
                 trace: vec![],
             },
