@@ -73,6 +73,16 @@ fn closest_cells(sim: &mut Simulation) -> i64 {
     best
 }
 
+/// The smallest distance (m) from collider `tool`'s surface to the points `parked`.
+fn closest_to_tool(sim: &mut Simulation, scene: &Scene, tool: usize, parked: &[DVec3]) -> f64 {
+    let pose = sim.collider_pose(tool).unwrap();
+    let shape = &scene.colliders[tool].shape;
+    parked
+        .iter()
+        .map(|p| shape.sdf(pose.to_local(*p)).0)
+        .fold(f64::INFINITY, f64::min)
+}
+
 #[test]
 fn resting_powder_parks_and_keeps_its_state() {
     let scene = resting_scene();
@@ -134,12 +144,7 @@ fn no_awake_grain_or_tool_comes_near_parked_powder_over_the_skill() {
                 "step {step}: an awake grain {d} cells from a parked one"
             );
         }
-        let pose = sim.collider_pose(tool).unwrap();
-        let shape = &scene.colliders[tool].shape;
-        let closest = parked
-            .iter()
-            .map(|p| shape.sdf(pose.to_local(*p)).0)
-            .fold(f64::INFINITY, f64::min);
+        let closest = closest_to_tool(&mut sim, &scene, tool, &parked);
         assert!(
             closest > 2.0 * dx,
             "step {step}: spatula {closest} m from parked powder"
@@ -226,13 +231,8 @@ fn a_moving_tool_wakes_the_heap_before_it_comes_near() {
     for step in 0..60 {
         sim.drive_tool(tool, [0.0, -0.0005, 0.0, 0.0, 0.0, 0.0]);
         sim.step().unwrap();
-        let pose = sim.collider_pose(tool).unwrap();
-        let shape = &scene.colliders[tool].shape;
         let (_, parked) = split_state(&mut sim);
-        let closest = parked
-            .iter()
-            .map(|p| shape.sdf(pose.to_local(*p)).0)
-            .fold(f64::INFINITY, f64::min);
+        let closest = closest_to_tool(&mut sim, &scene, tool, &parked);
         assert!(
             closest > 2.0 * dx,
             "step {step}: a parked grain {closest} m from the moving spatula"

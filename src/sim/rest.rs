@@ -187,6 +187,11 @@ pub fn before_step(world: &mut World) {
         let p = world.resource::<SimParams>();
         (p.dt, p.gravity)
     };
+    // Most steps have nothing parked: no paths to gather then.
+    let mut parked = world.query::<&Parked>();
+    if parked.iter(world).all(|p| p.is_empty()) {
+        return;
+    }
     let dx = world.resource::<Grid>().dx;
     let step = world.resource::<Clock>().step;
     let movers = movers(world, step);
