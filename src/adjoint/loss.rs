@@ -27,6 +27,7 @@ use crate::math::chamfer;
 use crate::math::geometry::logistic;
 pub use crate::math::geometry::CupRegion;
 use crate::math::heightfield::{self, HeightGrid};
+pub use crate::math::region::PlateRegion;
 use crate::scene::{LossSpec, Scene};
 
 /// The dosing loss's default ramp width, in particle spacings. With the soft region's faces in
@@ -85,6 +86,9 @@ pub enum Loss {
         bodies: Vec<usize>,
         inner: Box<Loss>,
     },
+    /// The push loss: the mean over grains of the softplus distance still to go into a plate's
+    /// region, with ramps of `width` (m) ([`PlateRegion::distance`]).
+    Region { region: PlateRegion, width: f64 },
 }
 
 /// An observed height map and the soft height's settings ([`crate::math::heightfield`]).
@@ -156,6 +160,7 @@ impl Loss {
                 })
             }
             Loss::Chamfer(o) => return on_all_bodies(xs, |all| chamfer::chamfer(all, o)),
+            Loss::Region { region, width } => return region.push_loss(xs, *width),
             _ => {}
         }
         if let Loss::Dosing(d) = self {
@@ -205,6 +210,7 @@ impl Loss {
                         Loss::Dosing(_)
                         | Loss::HeightField(_)
                         | Loss::Chamfer(_)
+                        | Loss::Region { .. }
                         | Loss::Only { .. } => {
                             unreachable!("handled above")
                         }

@@ -188,9 +188,11 @@ pub fn run_scaled(
     let target = match &loss {
         Loss::MeanL1(t) | Loss::SumDistance(t) => *t,
         Loss::Dosing(d) => d.cup.pose.translation,
-        Loss::Linear(_) | Loss::HeightField(_) | Loss::Chamfer(_) | Loss::Only { .. } => {
-            DVec3::ZERO
-        }
+        Loss::Linear(_)
+        | Loss::HeightField(_)
+        | Loss::Chamfer(_)
+        | Loss::Region { .. }
+        | Loss::Only { .. } => DVec3::ZERO,
     };
     let t0 = std::time::Instant::now();
     let base = forward_loss(scene, steps, threads, DVec3::ZERO, DVec3::ZERO, &loss)?;

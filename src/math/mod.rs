@@ -14,6 +14,7 @@ pub mod kernel;
 pub mod lanes;
 pub mod mesh;
 pub mod pose;
+pub mod region;
 pub mod return_map;
 pub mod sdf;
 pub mod simd;

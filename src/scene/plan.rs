@@ -101,6 +101,60 @@ pub struct PushPlan {
     /// 0.1.
     #[serde(default = "default_explore")]
     pub explore: f64,
+    /// Each stroke's optimiser (`OptWrench`). Default `Cma`.
+    #[serde(default)]
+    pub optimiser: StrokeOptimiser,
+    /// Where strokes aim (`ContactLoc`). Default `Median`.
+    #[serde(default)]
+    pub aim: Aim,
+    /// A*'s heuristic. Default `Unit`.
+    #[serde(default)]
+    pub heuristic: Heuristic,
+}
+
+/// Where a push plan's strokes aim across the stroke.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub enum Aim {
+    /// The median z of the powder outside; `ContactLoc` offers the medians of `contacts`
+    /// equal-count bands.
+    #[default]
+    Median,
+    /// Bands no wider than the blade across the powder outside, the one holding the most mass
+    /// weighted by its distance from the region first; `ContactLoc` offers the others (at
+    /// least `contacts` bands), so a patch wider than the blade takes side-by-side strokes.
+    Bands,
+}
+
+/// A push plan's A* heuristic.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub enum Heuristic {
+    /// 1 until success (admissible: every stroke costs 1).
+    #[default]
+    Unit,
+    /// The share still needed over the largest share one stroke's swept band holds: ranks
+    /// nodes by what is left to move. Admissible only while a stroke moves no grain from
+    /// outside its band.
+    Strokes,
+}
+
+/// How `OptWrench` optimises a stroke.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, PartialEq, Eq)]
+pub enum StrokeOptimiser {
+    /// CMA-ES on the soft share outside, from the scripted stroke.
+    #[default]
+    Cma,
+    /// Line searches along the push loss's gradient by the adjoint, from the scripted stroke.
+    Gradient,
+}
+
+impl StrokeOptimiser {
+    pub const ALL: [StrokeOptimiser; 2] = [StrokeOptimiser::Cma, StrokeOptimiser::Gradient];
+    pub fn name(self) -> &'static str {
+        match self {
+            StrokeOptimiser::Cma => "cma",
+            StrokeOptimiser::Gradient => "gradient",
+        }
+    }
 }
 
 fn default_success_fraction() -> f64 {
@@ -111,6 +165,13 @@ fn default_min_gain() -> f64 {
 }
 fn default_stroke_budget() -> usize {
     6
+}
+
+impl PushPlan {
+    /// The stroke budget a plan has when the scene gives none.
+    pub fn default_budget() -> usize {
+        default_stroke_budget()
+    }
 }
 fn default_push_expansions() -> usize {
     4

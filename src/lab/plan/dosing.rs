@@ -330,6 +330,8 @@ impl Dosing {
             loss,
             value: delivered_g,
             particle_substeps: work,
+            push_loss: None,
+            grad: None,
         })?;
         (self.progress)(self.rollouts, &format!("{delivered_g:.2} g"));
         Ok((loss, delivered_g, Some(states)))

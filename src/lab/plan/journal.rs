@@ -17,6 +17,12 @@ pub struct Entry {
     /// What the task measures at the end (grams delivered, the fraction in the region).
     pub value: f64,
     pub particle_substeps: f64,
+    /// A push stroke's push loss, where its rollout had a backward pass.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub push_loss: Option<f64>,
+    /// A push stroke's `∂(push loss)/∂Φ`, where its rollout had a backward pass.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grad: Option<[f64; 5]>,
 }
 
 /// The journal: what was read, and the file new rollouts go to (none: kept in memory only).

@@ -11,6 +11,7 @@ pub mod journal;
 pub mod output;
 pub mod push;
 pub mod search;
+pub mod stroke;
 pub(crate) mod study;
 
 use serde::{Deserialize, Serialize};

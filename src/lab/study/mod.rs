@@ -113,7 +113,16 @@ pub fn write_page(dir: &Path, name: &str, md: &str) -> Result<()> {
 
 /// The processor's name and the worker threads, for the page's header.
 pub fn machine() -> String {
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+    format!(
+        "{}, {} worker threads",
+        cpu_name(),
+        rayon::current_num_threads()
+    )
+}
+
+/// The processor's model name.
+pub fn cpu_name() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|t| {
             t.lines()
@@ -121,8 +130,7 @@ pub fn machine() -> String {
                 .and_then(|l| l.split(':').nth(1))
                 .map(|s| s.trim().to_string())
         })
-        .unwrap_or_else(|| "unknown processor".into());
-    format!("{cpu}, {} worker threads", rayon::current_num_threads())
+        .unwrap_or_else(|| "unknown processor".into())
 }
 
 /// Starts the global worker pool with `threads` threads (0: all cores).

@@ -3,6 +3,7 @@
 
 pub mod planning;
 pub mod push;
+pub mod push_directions;
 
 use crate::lab::plan::dosing::Method;
 use crate::lab::study::args::{Common, Page};
@@ -13,6 +14,9 @@ use std::path::PathBuf;
 
 /// Multi-scoop dosing and push/pull plans (planning.md).
 pub struct Planning;
+
+/// The push direction test runs at the first this many kept layouts of each class.
+pub const DIRECTION_LAYOUTS: usize = 5;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -27,6 +31,14 @@ pub struct Args {
     /// Instances per task.
     #[arg(long, default_value_t = 10)]
     pub seeds: usize,
+    /// Push layouts: `kept` (the design stream the settings were chosen on), `fresh` (the
+    /// verdict stream) or `both`.
+    #[arg(long, default_value = "both")]
+    pub layouts: String,
+    /// Worker threads of every simulation (default: the scenes' setting). Results do not
+    /// depend on it; small scenes run faster as two studies of one thread each.
+    #[arg(long, value_parser = crate::scene::threads_arg)]
+    pub threads: Option<usize>,
     /// The planners (comma separated, or all).
     #[arg(long, value_delimiter = ',', default_value = "all")]
     pub method: Vec<String>,
@@ -37,7 +49,11 @@ impl Study for Planning {
     const NAME: &'static str = "planning";
     const ABOUT: &'static str = "Multi-scoop dosing and push/pull plans (planning.md)";
     type Args = Args;
-    type Outcome = (Vec<planning::Row>, Vec<push::PushRow>);
+    type Outcome = (
+        Vec<planning::Row>,
+        Vec<push::PushRow>,
+        Vec<push_directions::Point>,
+    );
 
     /// Multi-scoop dosing and the four push/pull classes over randomised instances, A* against
     /// greedy and scripted (`--seeds` instances of each, 10 by default).
@@ -53,7 +69,10 @@ impl Study for Planning {
         };
         let (mut dosing, mut pushing) = (None, None);
         for t in &tasks {
-            let s = crate::scene::Scene::load(t)?;
+            let mut s = crate::scene::Scene::load(t)?;
+            if let Some(n) = a.threads {
+                s.simulation.threads = n;
+            }
             match &s.plan {
                 Some(PlanSpec::Dosing(_)) => dosing = Some(s),
                 Some(PlanSpec::Push(_)) => pushing = Some(s),
@@ -75,10 +94,27 @@ impl Study for Planning {
         let instances = dosing
             .as_ref()
             .map_or(Vec::new(), |_| planning::instances(a.seeds, 2026));
-        let pushes = pushing
-            .as_ref()
-            .map_or(Vec::new(), |_| push::push_instances(a.seeds, 2027));
-        let pb = ctx.bar(((instances.len() + pushes.len()) * methods.len()) as u64);
+        let (kept, fresh) = match a.layouts.as_str() {
+            "kept" => (true, false),
+            "fresh" => (false, true),
+            "both" => (true, true),
+            o => bail!("--layouts {o}: expected kept, fresh or both"),
+        };
+        let mut pushes: Vec<(bool, push::PushInstance)> = Vec::new();
+        if pushing.is_some() {
+            for (on, seed, is_fresh) in [
+                (kept, push::KEPT_SEED, false),
+                (fresh, push::FRESH_SEED, true),
+            ] {
+                if on {
+                    let all = push::push_instances(a.seeds, seed);
+                    pushes.extend(all.into_iter().map(|i| (is_fresh, i)));
+                }
+            }
+        }
+        let push_planners = push::planners(&methods);
+        let pb =
+            ctx.bar((instances.len() * methods.len() + pushes.len() * push_planners.len()) as u64);
         let rows = match &dosing {
             Some(scene) => planning::run(
                 scene,
@@ -97,7 +133,7 @@ impl Study for Planning {
                 scene,
                 &a.common.out.join("planning/push"),
                 &pushes,
-                &methods,
+                &push_planners,
                 &|k, m| {
                     pb.inc(1);
                     pb.set_message(format!("push instance {k}: {}", m.name()));
@@ -105,17 +141,55 @@ impl Study for Planning {
             )?,
             None => Vec::new(),
         };
+        // The direction test on the first five kept layouts of each class.
+        let points = match &pushing {
+            Some(scene) if kept => {
+                let at: Vec<push::PushInstance> = push::push_instances(a.seeds, push::KEPT_SEED)
+                    .into_iter()
+                    .filter(|i| i.index < DIRECTION_LAYOUTS)
+                    .collect();
+                push_directions::run(
+                    scene,
+                    &a.common.out.join("planning/push/directions"),
+                    &at,
+                    &|k| {
+                        pb.set_message(format!("push direction test {k}/{}", at.len()));
+                    },
+                )?
+            }
+            _ => Vec::new(),
+        };
         pb.finish_and_clear();
-        Ok((rows, push_rows))
+        Ok((rows, push_rows, points))
     }
 
-    fn page(a: &Args, (rows, push_rows): Self::Outcome, _: Ctx) -> Result<Report> {
+    fn page(a: &Args, (rows, push_rows, points): Self::Outcome, _: Ctx) -> Result<Report> {
         let command = format!(
             "powderlab study planning --seeds {} --out {}",
             a.seeds,
             a.common.out.display()
         );
-        let md = planning::report(&rows, &command, &machine()) + &push::push_report(&push_rows);
+        let push_machine = a.threads.map_or_else(machine, |n| {
+            format!(
+                "{}, {n} worker thread(s) per simulation",
+                crate::lab::study::cpu_name()
+            )
+        });
+        let push_md =
+            push::push_report(&push_rows, &push_machine) + &push_directions::report(&points);
+        // Without the dosing task, the page keeps its dosing section and replaces the rest.
+        let md = if rows.is_empty() {
+            let old =
+                std::fs::read_to_string(a.page.results.join("planning.md")).unwrap_or_default();
+            let head = old
+                .split(push::SECTION)
+                .next()
+                .unwrap_or_default()
+                .trim_end();
+            format!("{head}\n{push_md}")
+        } else {
+            planning::report(&rows, &command, &machine()) + &push_md
+        };
         write_page(&a.page.results, "planning.md", &md)?;
         Ok(Report {
             text: md,

@@ -2,10 +2,10 @@
 //! `scenes/plate_push.ron`, A* against greedy and scripted (docs/results/planning.md).
 
 use super::planning::kept_or;
-use crate::lab::plan::push::{Push, PushResult};
+use crate::lab::plan::push::{Push, PushResult, STROKE_BACKWARD_COST};
 use crate::lab::plan::Method;
 use crate::lab::stats::sign_test;
-use crate::scene::plan::{PlanSpec, PushClass};
+use crate::scene::plan::{PlanSpec, PushClass, StrokeOptimiser};
 use crate::scene::{Fill, Scene};
 use crate::util::SplitMix64;
 use serde::{Deserialize, Serialize};
@@ -88,69 +88,139 @@ pub fn push_scene_of(base: &Scene, inst: &PushInstance) -> anyhow::Result<Scene>
     Ok(s)
 }
 
-/// One push instance's plans, one per method.
+/// The layouts' two streams: the ten the planner's settings were chosen on (and the page's
+/// earlier tables came from), and ten that no setting was chosen on, drawn from their own seed.
+pub const KEPT_SEED: u64 = 2027;
+pub const FRESH_SEED: u64 = 4051;
+
+/// A planner: a method and, except for scripted, its strokes' optimiser.
+pub type Planner = (Method, StrokeOptimiser);
+
+/// The planners the study runs for `methods`: A* and greedy with each optimiser, scripted once.
+pub fn planners(methods: &[Method]) -> Vec<Planner> {
+    let mut out = Vec::new();
+    for &m in methods {
+        if m == Method::Scripted {
+            out.push((m, StrokeOptimiser::Cma));
+        } else {
+            out.extend(StrokeOptimiser::ALL.map(|o| (m, o)));
+        }
+    }
+    out
+}
+
+fn planner_name((m, o): Planner) -> String {
+    if m == Method::Scripted {
+        m.name().into()
+    } else {
+        format!("{} ({})", m.name(), o.name())
+    }
+}
+
+/// One push instance's plans, one per planner.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct PushRow {
     pub instance: PushInstance,
+    /// Whether the layout is of the fresh stream.
+    pub fresh: bool,
     pub plans: Vec<PushResult>,
 }
 
-/// Plans every push instance with every method into `dir`, keeping what is there.
+/// Plans every push instance (`(fresh, instance)`) with every planner into `dir`, keeping what
+/// is there.
 pub fn run_push(
     base: &Scene,
     dir: &Path,
-    instances: &[PushInstance],
-    methods: &[Method],
+    instances: &[(bool, PushInstance)],
+    planners: &[Planner],
     progress: &dyn Fn(usize, Method),
 ) -> anyhow::Result<Vec<PushRow>> {
     let mut rows = Vec::new();
-    for (k, inst) in instances.iter().enumerate() {
-        let scene = push_scene_of(base, inst)?;
+    for (k, (fresh, inst)) in instances.iter().enumerate() {
+        let mut scene = push_scene_of(base, inst)?;
         let class = inst.class.name().replace(' ', "-");
-        let out = dir.join(format!("{class}-{}", inst.index));
+        let stream = if *fresh { "fresh" } else { "kept" };
         let mut plans = Vec::new();
-        for &m in methods {
+        for &(m, o) in planners {
             progress(k, m);
+            if let Some(PlanSpec::Push(p)) = &mut scene.plan {
+                p.optimiser = o;
+            }
+            let out = dir.join(format!("{stream}/{class}-{}/{}", inst.index, o.name()));
             plans.push(kept_or::<Push>(&out, &scene, m, inst.index as u64)?);
         }
         rows.push(PushRow {
             instance: inst.clone(),
+            fresh: *fresh,
             plans,
         });
     }
     Ok(rows)
 }
 
+fn is(p: &PushResult, (m, o): Planner) -> bool {
+    p.method == m && (m == Method::Scripted || p.optimiser == o)
+}
+
+/// The plan of `planner` in a row.
+fn plan_of(r: &PushRow, planner: Planner) -> Option<&PushResult> {
+    r.plans.iter().find(|p| is(p, planner))
+}
+
+/// The heading that starts the push section.
+pub const SECTION: &str = "\n## Pushing and pulling powder";
+
 /// The push section of the page: seed B's figure 3 for powder.
-pub fn push_report(rows: &[PushRow]) -> String {
+pub fn push_report(rows: &[PushRow], machine: &str) -> String {
     let mut md = String::new();
     let Some(first) = rows.first() else {
         return md;
     };
-    let methods: Vec<Method> = first.plans.iter().map(|p| p.method).collect();
-    let frac = first.plans[0].success_fraction;
-    let per_class = rows
+    let planners: Vec<Planner> = first
+        .plans
         .iter()
-        .filter(|r| r.instance.class == PushClass::PushLeft)
-        .count();
+        .map(|p| (p.method, p.optimiser))
+        .collect();
+    let frac = first.plans[0].success_fraction;
+    let per_class = |fresh: bool| {
+        rows.iter()
+            .filter(|r| r.instance.class == PushClass::PushLeft && r.fresh == fresh)
+            .count()
+    };
     let wall: f64 = rows.iter().flat_map(|r| &r.plans).map(|p| p.wall_s).sum();
-    let _ = writeln!(md, "\n## Pushing and pulling powder (seed B's figure 3)\n");
+    let timing = |f: &dyn Fn(&PushResult) -> (f64, usize)| {
+        rows.iter()
+            .flat_map(|r| &r.plans)
+            .map(f)
+            .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+    };
+    let (fw, gw) = (
+        timing(&|p| p.forward_timing),
+        timing(&|p| p.gradient_timing),
+    );
+    let multiple =
+        (fw.1 > 0 && gw.1 > 0).then(|| (gw.0 / gw.1 as f64) / (fw.0 / fw.1 as f64) - 1.0);
+    let _ = writeln!(md, "{SECTION} (seed B's figure 3)\n");
     let _ = writeln!(
         md,
-        "The push plans' recorded wall times sum to {wall:.0} s (a resumed plan records its \
-         last run's time only).\n"
+        "Regenerate this section alone: `powderlab study planning --tasks scenes/plate_push.ron \
+         --seeds {} --threads 1 --out study` (it keeps the dosing section above; two runs with \
+         `--layouts kept` and `--layouts fresh` side by side, one thread each, take about half \
+         the time).  \nMachine: {machine}. The push plans' recorded wall times sum to \
+         {wall:.0} s (a resumed plan records its last run's time only).\n",
+        per_class(false).max(per_class(true)),
     );
     let _ = writeln!(
         md,
         "Scene: `scenes/plate_push.ron`: a patch of powder {PATCH_HEIGHT_MM} mm high on a plate, \
-         a spatula with a blade 40 mm wide. {per_class} layouts, each set in the four classes \
+         a spatula with a blade 40 mm wide. Layouts, each set in the four classes \
          (the right classes mirrored about the plate's middle): the patch's centre x in \
          [{:.0}, {:.0}] mm and z in [{:.0}, {:.0}] mm, its size {:.0}–{:.0} mm along the stroke \
          and {:.0}–{:.0} mm across it (wider than the blade from 40 mm on), the region's \
-         boundary {:.0}–{:.0} mm from \
-         the plate's left edge for the left classes. Success is at least {:.0} % of the mass \
-         in the region. Each stroke's optimiser is CMA-ES from the scripted stroke; scripted \
-         is that straight stroke through the middle of the powder still outside, repeated.\n",
+         boundary {:.0}–{:.0} mm from the plate's left edge for the left classes. Success is at \
+         least {:.0} % of the mass in the region. **Kept layouts**: the {} of seed {KEPT_SEED}, \
+         which the planner's settings were chosen on (the design stream). **Fresh layouts**: \
+         {} of seed {FRESH_SEED}, which nothing was chosen on (the verdict stream).\n",
         PATCH_X.0 * 1e3,
         PATCH_X.1 * 1e3,
         PATCH_Z.0 * 1e3,
@@ -162,54 +232,140 @@ pub fn push_report(rows: &[PushRow]) -> String {
         (BOUNDARY_LEFT.0 - 0.025) * 1e3,
         (BOUNDARY_LEFT.1 - 0.025) * 1e3,
         100.0 * frac,
+        per_class(false),
+        per_class(true),
         PATCH_HEIGHT_MM = PATCH_HEIGHT * 1e3,
     );
-    let mut head = String::from("| class |");
-    let mut rule = String::from("|---|");
-    for m in &methods {
-        let _ = write!(
-            head,
-            " {} success | {} mass in region, mean | {} strokes, mean | {} rollouts, mean |",
-            m.name(),
-            m.name(),
-            m.name(),
-            m.name()
-        );
-        rule.push_str("---|---|---|---|");
-    }
-    let _ = writeln!(md, "{head}\n{rule}");
-    for class in PushClass::ALL {
-        let rs: Vec<&PushRow> = rows.iter().filter(|r| r.instance.class == class).collect();
-        let n = rs.len();
-        let mut line = format!("| {} |", class.name());
-        for m in 0..methods.len() {
-            let ok = rs.iter().filter(|r| r.plans[m].success).count();
-            let mean = |f: &dyn Fn(&PushResult) -> f64| {
-                rs.iter().map(|r| f(&r.plans[m])).sum::<f64>() / n as f64
+    let _ = writeln!(
+        md,
+        "Each stroke's optimiser (`OptWrench`) has the plan's budget of {} forward rollouts \
+         from the scripted stroke. **cma**: CMA-ES on the soft share outside. **gradient**: line \
+         searches along the push loss's gradient by the adjoint, judged by the same soft share, \
+         a gradient rollout charged 1 + {STROKE_BACKWARD_COST} forward rollouts; the backward \
+         pass measured in this run cost {} forward rollouts ({} gradient and {} forward \
+         rollouts timed). Scripted is the straight stroke through the middle of the powder \
+         still outside, repeated. Compute counts every rollout's particle-substeps, a \
+         gradient rollout's at 1 + {STROKE_BACKWARD_COST} times.\n",
+        crate::scene::plan::PushPlan::default_budget(),
+        multiple.map_or("–".into(), |m| format!("{m:.2}")),
+        gw.1,
+        fw.1,
+    );
+    let _ = writeln!(
+        md,
+        "| planner | class | success, kept | success, fresh | mass in region, mean | strokes, \
+         mean | rollouts, mean | G particle-substeps, mean |\n|---|---|---|---|---|---|---|---|"
+    );
+    for &pl in &planners {
+        for class in PushClass::ALL {
+            let rs: Vec<(&PushRow, &PushResult)> = rows
+                .iter()
+                .filter(|r| r.instance.class == class)
+                .filter_map(|r| plan_of(r, pl).map(|p| (r, p)))
+                .collect();
+            let n = rs.len().max(1) as f64;
+            let ok = |fresh: bool| {
+                let sel: Vec<bool> = rs
+                    .iter()
+                    .filter(|(r, _)| r.fresh == fresh)
+                    .map(|(_, p)| p.success)
+                    .collect();
+                let k = sel.iter().filter(|s| **s).count();
+                if sel.is_empty() {
+                    "–".to_string()
+                } else {
+                    format!(
+                        "{k}/{} ({:.0} %)",
+                        sel.len(),
+                        100.0 * k as f64 / sel.len() as f64
+                    )
+                }
             };
-            let _ = write!(
-                line,
-                " {ok}/{n} ({:.0} %) | {:.1} % | {:.1} | {:.1} |",
-                100.0 * ok as f64 / n as f64,
+            let mean =
+                |f: &dyn Fn(&PushResult) -> f64| rs.iter().map(|(_, p)| f(p)).sum::<f64>() / n;
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {:.1} % | {:.1} | {:.1} | {:.4} |",
+                planner_name(pl),
+                class.name(),
+                ok(false),
+                ok(true),
                 100.0 * mean(&|p| p.in_region),
                 mean(&|p| p.strokes.len() as f64),
                 mean(&|p| p.rollouts as f64),
+                mean(&|p| p.particle_substeps) * 1e-9,
             );
         }
-        let _ = writeln!(md, "{line}");
     }
-    if let (Some(a), Some(b)) = (
-        methods.iter().position(|m| *m == Method::Astar),
-        methods.iter().position(|m| *m == Method::Scripted),
-    ) {
-        let sa: Vec<bool> = rows.iter().map(|r| r.plans[a].success).collect();
-        let sb: Vec<bool> = rows.iter().map(|r| r.plans[b].success).collect();
+    let _ = writeln!(
+        md,
+        "\nSign tests over paired instances (exact, one-sided):\n"
+    );
+    let current = (Method::Astar, StrokeOptimiser::Cma);
+    for (a, b) in [
+        ((Method::Astar, StrokeOptimiser::Gradient), current),
+        (current, (Method::Scripted, StrokeOptimiser::Cma)),
+        (
+            (Method::Astar, StrokeOptimiser::Gradient),
+            (Method::Greedy, StrokeOptimiser::Gradient),
+        ),
+    ] {
+        for fresh in [false, true] {
+            let pairs: Vec<(bool, bool)> = rows
+                .iter()
+                .filter(|r| r.fresh == fresh)
+                .filter_map(|r| Some((plan_of(r, a)?.success, plan_of(r, b)?.success)))
+                .collect();
+            if pairs.is_empty() {
+                continue;
+            }
+            let (sa, sb): (Vec<bool>, Vec<bool>) = pairs.into_iter().unzip();
+            let _ = writeln!(
+                md,
+                "- {} layouts: p = {} that {} succeeds more often than {} ({} against {} of {}).",
+                if fresh { "fresh" } else { "kept" },
+                sign_test(&sa, &sb)
+                    .map_or("– (no discordant pair)".into(), |p| format!("{p:.4}")),
+                planner_name(a),
+                planner_name(b),
+                sa.iter().filter(|s| **s).count(),
+                sb.iter().filter(|s| **s).count(),
+                sa.len(),
+            );
+        }
+    }
+    // Per stroke at equal compute: greedy's first stroke from the start, by each optimiser.
+    let g = |o| (Method::Greedy, o);
+    let firsts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter_map(|r| {
+            let c = plan_of(r, g(StrokeOptimiser::Cma))?
+                .strokes
+                .first()?
+                .in_region;
+            let d = plan_of(r, g(StrokeOptimiser::Gradient))?
+                .strokes
+                .first()?
+                .in_region;
+            Some((c, d))
+        })
+        .collect();
+    if !firsts.is_empty() {
+        let (c, d): (Vec<f64>, Vec<f64>) = firsts.iter().copied().unzip();
+        let better = firsts.iter().filter(|(c, d)| d > c).count();
+        let worse = firsts.iter().filter(|(c, d)| d < c).count();
         let _ = writeln!(
             md,
-            "\nOver all {} instances: exact sign test p = {} that A\\* succeeds more often than \
-             scripted (paired instances).",
-            rows.len(),
-            sign_test(&sa, &sb).map_or("– (no discordant pair)".into(), |p| format!("{p:.4}"))
+            "\n**Per stroke at equal compute.** The first stroke of every greedy plan starts from \
+             the same state with the same budget (the patch starts outside the region, so its \
+             share in the region afterwards is the mass the stroke moved in). Over {} \
+             instances the gradient moved in {:.1} % on average, CMA-ES {:.1} %; the gradient \
+             moved more on {better}, less on {worse}. One-sided Wilcoxon p = {} that CMA-ES \
+             moves less than the gradient.",
+            firsts.len(),
+            100.0 * crate::lab::stats::mean(&d),
+            100.0 * crate::lab::stats::mean(&c),
+            crate::lab::stats::p_text(crate::lab::stats::wilcoxon_less(&c, &d)),
         );
     }
     md

@@ -22,74 +22,52 @@
 //!
 //! The rollouts go through a [`Journal`] as the dosing plan's do.
 
-use super::journal::{key, node_seed, Entry, Journal, Progress};
+mod aim;
+mod wrench;
+
+use super::journal::{key, Entry, Journal, Progress};
 use super::search::{search, SearchOptions, Task};
+use super::stroke::{motion, Frame};
 use crate::components::BodyState;
-use crate::lab::optim::cma::{reflect, run_sequential};
-use crate::scene::plan::{PlanSpec, PushClass, PushPlan};
+use crate::math::region::PlateRegion;
+use crate::scene::plan::{Aim, Heuristic, PlanSpec, PushClass, PushPlan, StrokeOptimiser};
 use crate::scene::{ControlSpec, Scene};
 use crate::sim::{Build, SimOptions, Simulation};
-use glam::{DQuat, DVec3};
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
+pub use wrench::LINE_RADIUS;
 
-/// The physical range of each stroke parameter: landing distance behind the powder (m),
-/// lateral offset (m), yaw (degrees), edge height above the plate (m), length (m).
-pub const RANGES: [(f64, f64); 5] = [
-    (0.003, 0.02),
-    (-0.015, 0.015),
-    (-30.0, 30.0),
-    (0.0005, 0.005),
-    (0.02, 0.12),
-];
-
-/// The height the blade descends from onto its landing point, and lifts by after the stroke
-/// (m).
-pub const LIFT: f64 = 0.02;
-/// Steps the spatula holds still after lifting, for the powder to settle.
-pub const SETTLE_STEPS: usize = 10;
+pub use super::stroke::{Stroke, LIFT, RANGES, SETTLE_STEPS};
 
 /// CMA-ES's initial step (Φ units) around the scripted stroke: a quarter of the box's half
 /// width. The scripted stroke is a good start (it reaches success alone on a compact patch), and
 /// at the default step of 0.5 eight samples around it were all worse on a wide patch.
 pub const STROKE_SIGMA: f64 = 0.25;
 
-/// A stroke in physical units.
-#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
-pub struct Stroke {
-    pub behind: f64,
-    pub lateral: f64,
-    pub yaw_deg: f64,
-    pub height: f64,
-    pub length: f64,
-}
+/// The push loss's ramps, in cells: half a cell, as the soft share's.
+pub const PUSH_WIDTH_CELLS: f64 = 0.5;
 
-impl Stroke {
-    pub fn from_phi(phi: &[f64; 5]) -> Stroke {
-        let m = |k: usize| RANGES[k].0 + 0.5 * (phi[k] + 1.0) * (RANGES[k].1 - RANGES[k].0);
-        Stroke {
-            behind: m(0),
-            lateral: m(1),
-            yaw_deg: m(2),
-            height: m(3),
-            length: m(4),
-        }
-    }
-    /// Φ of a stroke, clamped into the box.
-    pub fn to_phi(&self) -> [f64; 5] {
-        let v = [
-            self.behind,
-            self.lateral,
-            self.yaw_deg,
-            self.height,
-            self.length,
-        ];
-        std::array::from_fn(|k| {
-            (2.0 * (v[k] - RANGES[k].0) / (RANGES[k].1 - RANGES[k].0) - 1.0).clamp(-1.0, 1.0)
-        })
-    }
+/// A stroke's backward pass as a multiple of its forward, what a gradient rollout is charged
+/// beyond its forward in the plan's budget and compute: `tests/push_gradient.rs` prints 1.70
+/// on the shipped scene (2 threads; 0.65 s forward, 1.76 s with the backward pass), and the
+/// planning page gives the multiple measured in its own run.
+pub const STROKE_BACKWARD_COST: f64 = 1.7;
+
+/// What [`Push::rollout_grad`] gives.
+#[derive(Clone, Debug)]
+pub struct GradRollout {
+    /// The soft share outside, the optimisers' objective.
+    pub loss: f64,
+    /// The share in the region.
+    pub share: f64,
+    /// The push loss (m).
+    pub push_loss: f64,
+    /// `∂(push loss)/∂Φ`.
+    pub grad: [f64; 5],
+    pub states: Option<Vec<BodyState>>,
 }
 
 /// One stroke of a plan.
@@ -122,6 +100,9 @@ pub struct PushNode {
 pub struct PushResult {
     pub class: PushClass,
     pub method: super::dosing::Method,
+    /// The strokes' optimiser (scripted plans optimise nothing).
+    #[serde(default)]
+    pub optimiser: StrokeOptimiser,
     pub success_fraction: f64,
     /// The share of the mass in the region at the end.
     pub in_region: f64,
@@ -132,6 +113,15 @@ pub struct PushResult {
     pub expansions: usize,
     pub replayed: usize,
     pub wall_s: f64,
+    /// Rollouts with a backward pass, among `rollouts`.
+    #[serde(default)]
+    pub backward: usize,
+    /// Wall seconds and count of the forward-only rollouts simulated (not replayed), and of
+    /// those with a backward pass: the backward pass's measured multiple.
+    #[serde(default)]
+    pub forward_timing: (f64, usize),
+    #[serde(default)]
+    pub gradient_timing: (f64, usize),
 }
 
 /// The push task.
@@ -144,6 +134,11 @@ pub struct Push {
     seed: u64,
     journal: Journal,
     pub rollouts: usize,
+    /// Rollouts with a backward pass, among `rollouts`.
+    pub backward: usize,
+    /// Wall seconds and count of the simulated forward-only and gradient rollouts.
+    pub forward_timing: (f64, usize),
+    pub gradient_timing: (f64, usize),
     pub particle_substeps: f64,
     pub replayed: usize,
     pub progress: Progress,
@@ -182,6 +177,9 @@ impl Push {
                 None => Journal::default(),
             },
             rollouts: 0,
+            backward: 0,
+            forward_timing: (0.0, 0),
+            gradient_timing: (0.0, 0),
             particle_substeps: 0.0,
             replayed: 0,
             progress: Box::new(|_, _| {}),
@@ -193,44 +191,31 @@ impl Push {
         self.plate.0.y + self.plate.1.y
     }
 
-    /// Whether a position lies in the region: on the plate (above its bottom, within its
-    /// extent) beyond the boundary on the class's side.
+    /// The region the powder goes to.
+    pub fn region(&self) -> PlateRegion {
+        PlateRegion {
+            centre: self.plate.0,
+            half: self.plate.1,
+            boundary: self.plan.boundary,
+            side: self.plan.class.side(),
+        }
+    }
+
     fn in_region(&self, x: DVec3) -> bool {
-        let (c, h) = self.plate;
-        let s = self.plan.class.side();
-        s * (x.x - self.plan.boundary) > 0.0
-            && (x.x - c.x).abs() < h.x
-            && (x.z - c.z).abs() < h.z
-            && x.y > c.y - h.y
+        self.region().inside(x)
     }
 
     /// The hard share of particles in the region (the bodies share one material here, so
     /// particles stand for mass).
     fn share(&self, state: &[BodyState]) -> f64 {
-        let n: usize = state.iter().map(|b| b.x.len()).sum();
-        let k = state
-            .iter()
-            .flat_map(|b| b.x.iter())
-            .filter(|x| self.in_region(**x))
-            .count();
-        k as f64 / n.max(1) as f64
+        self.region().share(state.iter().flat_map(|b| b.x.iter()))
     }
 
-    /// The soft share outside the region: `1 − mean σ(s·(x − boundary)/w)·σ(edge terms)`.
+    /// The soft share outside the region, with logistic edges half a cell wide.
     fn loss(&self, state: &[BodyState]) -> f64 {
-        use crate::math::geometry::logistic;
-        let (c, h) = self.plate;
         let w = 0.5 * self.scene.simulation.dx;
-        let s = self.plan.class.side();
-        let (mut sum, mut n) = (0.0, 0.0);
-        for x in state.iter().flat_map(|b| b.x.iter()) {
-            sum += logistic(s * (x.x - self.plan.boundary) / w)
-                * logistic((h.x - (x.x - c.x).abs()) / w)
-                * logistic((h.z - (x.z - c.z).abs()) / w)
-                * logistic((x.y - (c.y - h.y)) / w);
-            n += 1.0;
-        }
-        1.0 - sum / n
+        self.region()
+            .soft_outside(state.iter().flat_map(|b| b.x.iter()), w)
     }
 
     /// The particles still outside the region.
@@ -242,8 +227,24 @@ impl Push {
             .copied()
     }
 
-    /// The median of the z of the particles outside, within `[lo, hi]` quantiles of z.
+    /// The contacts from a state, the node's own first: the plan's [`Aim`].
     fn contacts(&self, state: &[BodyState], k: usize) -> Vec<f64> {
+        if self.plan.aim == Aim::Bands {
+            let w = PUSH_WIDTH_CELLS * self.scene.simulation.dx;
+            let region = self.region();
+            let grains: Vec<(f64, f64)> = state
+                .iter()
+                .flat_map(|b| b.x.iter())
+                .filter(|x| !region.inside(**x))
+                .map(|x| (x.z, region.distance(*x, w).0))
+                .collect();
+            let b = aim::bands(&grains, self.blade_width(), k);
+            return if b.is_empty() {
+                vec![self.plate.0.z]
+            } else {
+                b
+            };
+        }
         let mut z: Vec<f64> = self.outside(state).map(|x| x.z).collect();
         if z.is_empty() {
             return vec![self.plate.0.z];
@@ -252,6 +253,30 @@ impl Push {
         (0..k)
             .map(|i| z[((2 * i + 1) * z.len() / (2 * k)).min(z.len() - 1)])
             .collect()
+    }
+
+    /// The spatula's blade width (m).
+    fn blade_width(&self) -> f64 {
+        match self.scene.colliders[self.tool].shape {
+            crate::math::sdf::Shape::Spatula { blade_width, .. } => blade_width,
+            _ => unreachable!("Push::new finds the spatula"),
+        }
+    }
+
+    /// The plan's heuristic at `n` (see [`Heuristic`]).
+    fn estimate(&self, n: &PushNode) -> f64 {
+        if self.done(n) {
+            return 0.0;
+        }
+        match self.plan.heuristic {
+            Heuristic::Unit => 1.0,
+            Heuristic::Strokes => {
+                let total: usize = n.state.iter().map(|b| b.x.len()).sum();
+                let zs: Vec<f64> = self.outside(&n.state).map(|x| x.z).collect();
+                let sweep = self.blade_width() + RANGES[4].1 * RANGES[2].1.to_radians().sin();
+                aim::strokes_bound(&zs, total, sweep, self.plan.success_fraction - n.in_region)
+            }
+        }
     }
 
     pub fn start(&mut self) -> anyhow::Result<PushNode> {
@@ -283,63 +308,37 @@ impl Push {
         }
     }
 
-    /// The landing point, the pose and the per-step controls of a stroke from `n`.
-    fn motion(&self, n: &PushNode, st: &Stroke) -> ([f64; 3], DQuat, Vec<[f64; 6]>) {
-        let s = self.plan.class.side();
-        let trailing = self.trailing_edge(&n.state);
-        let yaw = st.yaw_deg.to_radians();
-        let d = DVec3::new(s * yaw.cos(), 0.0, yaw.sin());
-        let landing = DVec3::new(
-            trailing - s * st.behind,
-            self.plate_top() + st.height,
-            n.contact + st.lateral,
-        );
-        // Local z (the blade's face normal) along the stroke, then the handle leaned about the
-        // blade's width: toward the stroke for a pull, against it for a push.
-        let face = DQuat::from_rotation_y(d.x.atan2(d.z));
-        let width = face * DVec3::X;
+    /// The frame a stroke from `n` is measured in.
+    pub fn frame(&self, n: &PushNode) -> Frame {
         let lean =
             self.plan.lean_deg.to_radians() * if self.plan.class.pulls() { 1.0 } else { -1.0 };
-        let rotation = DQuat::from_axis_angle(width, lean) * face;
-        let dt = self.scene.simulation.dt;
-        let steps = |dist: f64| ((dist / (self.plan.speed * dt)).round() as usize).max(1);
-        let mut controls = Vec::new();
-        let n1 = steps(LIFT);
-        controls.extend(std::iter::repeat_n(
-            [0.0, -LIFT / n1 as f64, 0.0, 0.0, 0.0, 0.0],
-            n1,
-        ));
-        let n2 = steps(st.length);
-        let step = d * st.length / n2 as f64;
-        controls.extend(std::iter::repeat_n(
-            [step.x, 0.0, step.z, 0.0, 0.0, 0.0],
-            n2,
-        ));
-        controls.extend(std::iter::repeat_n(
-            [0.0, LIFT / n1 as f64, 0.0, 0.0, 0.0, 0.0],
-            n1,
-        ));
-        controls.extend(std::iter::repeat_n([0.0; 6], SETTLE_STEPS));
-        let start = landing + DVec3::new(0.0, LIFT, 0.0);
-        (start.to_array(), rotation, controls)
+        Frame {
+            side: self.plan.class.side(),
+            trailing: self.trailing_edge(&n.state),
+            contact: n.contact,
+            plate_top: self.plate_top(),
+            lean,
+            speed: self.plan.speed,
+            dt: self.scene.simulation.dt,
+        }
     }
 
     /// The simulation of a stroke from `n`, at its first step.
     pub fn stroke_simulation(&self, n: &PushNode, st: &Stroke) -> anyhow::Result<Simulation> {
-        let (start, rotation, controls) = self.motion(n, st);
+        let m = motion(&self.frame(n), st);
         let mut scene = self.scene.clone();
         let tool = &mut scene.colliders[self.tool];
-        tool.position = (start[0], start[1], start[2]);
-        let (a, b, c) = rotation.to_euler(glam::EulerRot::XYZ);
+        tool.position = m.start.into();
+        let (a, b, c) = m.rotation.to_euler(glam::EulerRot::XYZ);
         tool.rotation_deg = (a.to_degrees(), b.to_degrees(), c.to_degrees());
-        tool.control = Some(ControlSpec::Actions(controls.clone()));
+        tool.control = Some(ControlSpec::Actions(m.controls));
         scene.validate()?;
         let build = Build::new(&scene)?.with_start(&scene, &n.state)?;
         Ok(build.simulation(scene, &SimOptions::default())?)
     }
 
     /// One rollout of a stroke: (loss, share in the region, the final state when simulated).
-    fn rollout(
+    pub fn rollout(
         &mut self,
         n: &PushNode,
         phi: [f64; 5],
@@ -353,12 +352,15 @@ impl Push {
             (self.progress)(self.rollouts, &format!("replayed: {:.0} % in", 100.0 * v));
             return Ok((l, v, None));
         }
+        let t0 = Instant::now();
         let st = Stroke::from_phi(&phi);
         let mut sim = self.stroke_simulation(n, &st)?;
         let steps = sim.horizon;
         sim.run(steps, |_| {})?;
         let states = sim.body_states();
         let (loss, share) = (self.loss(&states), self.share(&states));
+        self.forward_timing.0 += t0.elapsed().as_secs_f64();
+        self.forward_timing.1 += 1;
         let work = (sim.particle_count() * steps * sim.params().substeps) as f64;
         self.particle_substeps += work;
         self.journal.put(Entry {
@@ -366,6 +368,8 @@ impl Push {
             loss,
             value: share,
             particle_substeps: work,
+            push_loss: None,
+            grad: None,
         })?;
         (self.progress)(self.rollouts, &format!("{:.0} % in", 100.0 * share));
         Ok((loss, share, Some(states)))
@@ -389,10 +393,7 @@ impl Push {
                 sim.body_states()
             }
         };
-        let landing = {
-            let (start, _, _) = self.motion(n, &st);
-            [start[0], start[1] - LIFT, start[2]]
-        };
+        let landing = motion(&self.frame(n), &st).landing().to_array();
         let in_region = self.share(&states);
         let contact = self.contacts(&states, 1)[0];
         Ok(PushNode {
@@ -428,32 +429,6 @@ impl Push {
         }
     }
 
-    /// `OptWrench` from `n`.
-    pub fn optimise(&mut self, n: &PushNode) -> anyhow::Result<Option<PushNode>> {
-        if n.strokes >= self.plan.max_strokes {
-            return Ok(None);
-        }
-        let budget = self.plan.stroke_budget;
-        let x0 = self.scripted(n).to_phi();
-        let mut tried = Vec::new();
-        let first = self.rollout(n, x0)?;
-        tried.push((first.0, x0, first.2));
-        if budget > 1 {
-            let seed = node_seed(self.seed, &n.key);
-            run_sequential(x0.to_vec(), STROKE_SIGMA, seed, budget - 1, |x| {
-                let phi: [f64; 5] = std::array::from_fn(|k| reflect(x[k]));
-                let (l, _, st) = self.rollout(n, phi)?;
-                tried.push((l, phi, st));
-                Ok(l)
-            })?;
-        }
-        let best = tried
-            .into_iter()
-            .reduce(|a, b| if b.0 < a.0 { b } else { a })
-            .expect("one rollout at least");
-        Ok(Some(self.after(n, best.1, best.2, budget)?))
-    }
-
     pub fn done(&self, n: &PushNode) -> bool {
         n.in_region >= self.plan.success_fraction
     }
@@ -469,6 +444,7 @@ impl Push {
         PushResult {
             class: self.plan.class,
             method,
+            optimiser: self.plan.optimiser,
             success_fraction: self.plan.success_fraction,
             in_region: last.in_region,
             success: self.done(last),
@@ -478,6 +454,9 @@ impl Push {
             expansions,
             replayed: self.replayed,
             wall_s: t0.elapsed().as_secs_f64(),
+            backward: self.backward,
+            forward_timing: self.forward_timing,
+            gradient_timing: self.gradient_timing,
         }
     }
 
@@ -548,11 +527,7 @@ impl Task for Push {
             .collect()
     }
     fn heuristic(&self, n: &PushNode) -> f64 {
-        if self.done(n) {
-            0.0
-        } else {
-            1.0
-        }
+        self.estimate(n)
     }
     fn distance(&self, n: &PushNode) -> f64 {
         (self.plan.success_fraction - n.in_region).max(0.0)
