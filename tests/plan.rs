@@ -284,3 +284,40 @@ fn a_push_plan_moves_powder_into_the_region() {
     );
     std::fs::remove_dir_all(&d).ok();
 }
+
+/// The gradient optimiser end to end, with the aim by bands and the strokes heuristic: a greedy
+/// stroke charged one gradient rollout and forward trials within its budget of 5, keeping the
+/// scripted stroke or better (it starts there and keeps the best it tried).
+#[test]
+fn a_push_plan_with_the_gradient_optimiser_keeps_the_best_stroke() {
+    let d = scratch("pushgrad");
+    let p = plate_with(
+        &d,
+        r#"Some(Push((plate: "plate", class: PushLeft, boundary: 0.06, stroke_budget: 5,
+            max_expansions: 1, max_strokes: 1, optimiser: Gradient, aim: Bands,
+            heuristic: Strokes)))"#,
+    );
+    let out = d.join("out");
+    let o = plan(&[
+        p.to_str().unwrap(),
+        "--method",
+        "scripted,greedy",
+        "--json",
+        "--no-rrd",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let rs: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let greedy = &rs[1];
+    assert_eq!(greedy["optimiser"], "Gradient");
+    // One gradient rollout (1 + 1.7) and two forward trials fill a budget of 5.
+    assert_eq!(greedy["backward"].as_u64(), Some(1), "{greedy}");
+    assert_eq!(greedy["rollouts"].as_u64(), Some(3), "{greedy}");
+    let share = |r: &serde_json::Value| r["strokes"][0]["in_region"].as_f64().unwrap();
+    assert!(share(greedy) >= share(&rs[0]), "{rs:?}");
+    std::fs::remove_dir_all(&d).ok();
+}
