@@ -205,9 +205,9 @@ pub fn push_report(rows: &[PushRow], machine: &str) -> String {
     let _ = writeln!(
         md,
         "Regenerate this section alone: `powderlab study planning --tasks scenes/plate_push.ron \
-         --seeds {} --threads 1 --out study` (it keeps the dosing section above; two runs with \
-         `--layouts kept` and `--layouts fresh` side by side, one thread each, take about half \
-         the time).  \nMachine: {machine}. The push plans' recorded wall times sum to \
+         --seeds {} --threads 1 --out study` (it keeps the dosing section above; the plans here \
+         came from two such runs side by side, `--layouts kept` and `--layouts fresh`, and a \
+         last one with both that found them kept).  \nMachine: {machine}. The push plans' recorded wall times sum to \
          {wall:.0} s (a resumed plan records its last run's time only).\n",
         per_class(false).max(per_class(true)),
     );
