@@ -240,6 +240,25 @@ fn a_malformed_push_request_gets_a_clear_error() {
     std::fs::remove_dir_all(&d).ok();
 }
 
+/// Plans the scene `p` with `methods` into `dir/out` and gives each method's JSON result.
+fn push_plans(dir: &Path, p: &Path, methods: &str) -> Vec<serde_json::Value> {
+    let out = dir.join("out");
+    let o = plan(&[
+        p.to_str().unwrap(),
+        "--method",
+        methods,
+        "--json",
+        "--no-rrd",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
 #[test]
 fn a_push_plan_moves_powder_into_the_region() {
     let d = scratch("push");
@@ -248,21 +267,7 @@ fn a_push_plan_moves_powder_into_the_region() {
         r#"Some(Push((plate: "plate", class: PullLeft, boundary: 0.06, stroke_budget: 2,
             max_expansions: 2, max_strokes: 2)))"#,
     );
-    let out = d.join("out");
-    let o = plan(&[
-        p.to_str().unwrap(),
-        "--method",
-        "scripted,astar",
-        "--json",
-        "--no-rrd",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let rs: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let rs = push_plans(&d, &p, "scripted,astar");
     let mut shares = Vec::new();
     for r in &rs {
         let strokes = r["strokes"].as_array().unwrap();
@@ -297,21 +302,7 @@ fn a_push_plan_with_the_gradient_optimiser_keeps_the_best_stroke() {
             max_expansions: 1, max_strokes: 1, optimiser: Gradient, aim: Bands,
             heuristic: Strokes)))"#,
     );
-    let out = d.join("out");
-    let o = plan(&[
-        p.to_str().unwrap(),
-        "--method",
-        "scripted,greedy",
-        "--json",
-        "--no-rrd",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let rs: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let rs = push_plans(&d, &p, "scripted,greedy");
     let greedy = &rs[1];
     assert_eq!(greedy["optimiser"], "Gradient");
     // One gradient rollout (1 + 1.7) and two forward trials fill a budget of 5.

@@ -9,13 +9,14 @@
 //!   plate, and the stroke's length. The spatula descends onto the landing point, strokes,
 //!   lifts and holds still; the class leans the handle against the stroke (push) or along it
 //!   (pull).
-//! - **`OptWrench`** runs CMA-ES on the soft share of mass outside the region (logistic edges
-//!   half a cell wide), from the scripted stroke with a step of [`STROKE_SIGMA`], for the plan's
-//!   `stroke_budget` rollouts, and keeps the one of lowest loss.
+//! - **`OptWrench`** ([`wrench`]): CMA-ES on the soft share of mass outside the region, or line
+//!   searches along the push loss's gradient, from the scripted stroke, for the plan's
+//!   `stroke_budget` rollouts; either keeps the stroke of lowest soft share outside.
 //! - **`OptIsSuccess`**: the stroke reached success or moved `min_gain` of the mass in.
-//! - **`ContactLoc`** splits the powder still outside into `contacts` bands across the stroke
-//!   and aims at each band's median z.
-//! - **Cost**: one per stroke, `move_cost` per relocation; the heuristic is 1 until success.
+//! - **`ContactLoc`** ([`aim`]): the medians of `contacts` bands of the powder still outside, or
+//!   bands no wider than the blade weighted by the grains' distance, as the plan's `aim` says.
+//! - **Cost**: one per stroke, `move_cost` per relocation; the heuristic is 1 until success, or
+//!   a bound on the strokes still needed, as the plan's `heuristic` says.
 //! - **Scripted**: a straight stroke through the middle of the powder still outside, the blade
 //!   landing 1 cm behind it at 1 mm above the plate and stopping 1 cm inside the region,
 //!   repeated until success or `max_strokes`.
@@ -51,9 +52,11 @@ pub const STROKE_SIGMA: f64 = 0.25;
 pub const PUSH_WIDTH_CELLS: f64 = 0.5;
 
 /// A stroke's backward pass as a multiple of its forward, what a gradient rollout is charged
-/// beyond its forward in the plan's budget and compute: `tests/push_gradient.rs` prints 1.70
-/// on the shipped scene (2 threads; 0.65 s forward, 1.76 s with the backward pass), and the
-/// planning page gives the multiple measured in its own run.
+/// beyond its forward in the plan's budget and compute. It was set from one printout of
+/// `tests/push_gradient.rs` (1.70; later runs of that test printed 3.8 and 4.3, a single
+/// rollout on a noisy VM), and the planning run measured 2.93 over 504 gradient rollouts: the
+/// charge is low, the planning page says by how much, and raising it changes the budget's
+/// split, so it waits for the next run of that study.
 pub const STROKE_BACKWARD_COST: f64 = 1.7;
 
 /// What [`Push::rollout_grad`] gives.
@@ -201,10 +204,6 @@ impl Push {
         }
     }
 
-    fn in_region(&self, x: DVec3) -> bool {
-        self.region().inside(x)
-    }
-
     /// The hard share of particles in the region (the bodies share one material here, so
     /// particles stand for mass).
     fn share(&self, state: &[BodyState]) -> f64 {
@@ -219,11 +218,12 @@ impl Push {
     }
 
     /// The particles still outside the region.
-    fn outside<'a>(&'a self, state: &'a [BodyState]) -> impl Iterator<Item = DVec3> + 'a {
+    fn outside<'a>(&self, state: &'a [BodyState]) -> impl Iterator<Item = DVec3> + 'a {
+        let region = self.region();
         state
             .iter()
             .flat_map(|b| b.x.iter())
-            .filter(|x| !self.in_region(**x))
+            .filter(move |x| !region.inside(**x))
             .copied()
     }
 
@@ -232,11 +232,9 @@ impl Push {
         if self.plan.aim == Aim::Bands {
             let w = PUSH_WIDTH_CELLS * self.scene.simulation.dx;
             let region = self.region();
-            let grains: Vec<(f64, f64)> = state
-                .iter()
-                .flat_map(|b| b.x.iter())
-                .filter(|x| !region.inside(**x))
-                .map(|x| (x.z, region.distance(*x, w).0))
+            let grains: Vec<(f64, f64)> = self
+                .outside(state)
+                .map(|x| (x.z, region.distance(x, w).0))
                 .collect();
             let b = aim::bands(&grains, self.blade_width(), k);
             return if b.is_empty() {
@@ -344,13 +342,8 @@ impl Push {
         phi: [f64; 5],
     ) -> anyhow::Result<(f64, f64, Option<Vec<BodyState>>)> {
         let full = key(&n.key, &phi);
-        self.rollouts += 1;
-        if let Some(e) = self.journal.get(&full) {
-            self.particle_substeps += e.particle_substeps;
-            self.replayed += 1;
-            let (l, v) = (e.loss, e.value);
-            (self.progress)(self.rollouts, &format!("replayed: {:.0} % in", 100.0 * v));
-            return Ok((l, v, None));
+        if let Some(e) = self.replay(&full) {
+            return Ok((e.loss, e.value, None));
         }
         let t0 = Instant::now();
         let st = Stroke::from_phi(&phi);
@@ -359,20 +352,57 @@ impl Push {
         sim.run(steps, |_| {})?;
         let states = sim.body_states();
         let (loss, share) = (self.loss(&states), self.share(&states));
-        self.forward_timing.0 += t0.elapsed().as_secs_f64();
-        self.forward_timing.1 += 1;
         let work = (sim.particle_count() * steps * sim.params().substeps) as f64;
-        self.particle_substeps += work;
-        self.journal.put(Entry {
-            key: full,
-            loss,
-            value: share,
-            particle_substeps: work,
-            push_loss: None,
-            grad: None,
-        })?;
-        (self.progress)(self.rollouts, &format!("{:.0} % in", 100.0 * share));
+        self.record(
+            Entry {
+                key: full,
+                loss,
+                value: share,
+                particle_substeps: work,
+                push_loss: None,
+                grad: None,
+            },
+            t0,
+        )?;
         Ok((loss, share, Some(states)))
+    }
+
+    /// A rollout counted, and its journal entry if it has one (then also counted as replayed,
+    /// with its compute).
+    fn replay(&mut self, full: &str) -> Option<Entry> {
+        self.rollouts += 1;
+        let e = self.journal.get(full)?.clone();
+        self.particle_substeps += e.particle_substeps;
+        self.replayed += 1;
+        self.backward += usize::from(e.grad.is_some());
+        (self.progress)(
+            self.rollouts,
+            &format!("replayed: {:.0} % in", 100.0 * e.value),
+        );
+        Some(e)
+    }
+
+    /// A simulated rollout: its time (a gradient rollout's where the entry has a gradient), its
+    /// compute, its journal line and the progress message.
+    fn record(&mut self, e: Entry, t0: Instant) -> anyhow::Result<()> {
+        let gradient = e.grad.is_some();
+        let timing = if gradient {
+            self.backward += 1;
+            &mut self.gradient_timing
+        } else {
+            &mut self.forward_timing
+        };
+        timing.0 += t0.elapsed().as_secs_f64();
+        timing.1 += 1;
+        self.particle_substeps += e.particle_substeps;
+        let message = format!(
+            "{:.0} % in{}",
+            100.0 * e.value,
+            if gradient { " (gradient)" } else { "" }
+        );
+        self.journal.put(e)?;
+        (self.progress)(self.rollouts, &message);
+        Ok(())
     }
 
     /// The node a stroke leads to.

@@ -122,15 +122,7 @@ impl Push {
     /// region, the push loss, `∂(push loss)/∂Φ`, the final state when simulated).
     pub fn rollout_grad(&mut self, n: &PushNode, phi: [f64; 5]) -> anyhow::Result<GradRollout> {
         let full = format!("{}|grad", key(&n.key, &phi));
-        self.rollouts += 1;
-        self.backward += 1;
-        if let Some(e) = self.journal.get(&full) {
-            self.particle_substeps += e.particle_substeps;
-            self.replayed += 1;
-            (self.progress)(
-                self.rollouts,
-                &format!("replayed: {:.0} % in", 100.0 * e.value),
-            );
+        if let Some(e) = self.replay(&full) {
             return Ok(GradRollout {
                 loss: e.loss,
                 share: e.value,
@@ -164,24 +156,20 @@ impl Push {
         );
         let states = sim.body_states();
         let (loss, share) = (self.loss(&states), self.share(&states));
-        self.gradient_timing.0 += t0.elapsed().as_secs_f64();
-        self.gradient_timing.1 += 1;
         // The backward pass at the multiple of a forward that the plan budgets with.
         let work = (sim.particle_count() * steps * sim.params().substeps) as f64
             * (1.0 + STROKE_BACKWARD_COST);
-        self.particle_substeps += work;
-        self.journal.put(Entry {
-            key: full,
-            loss,
-            value: share,
-            particle_substeps: work,
-            push_loss: Some(g.loss),
-            grad: Some(grad),
-        })?;
-        (self.progress)(
-            self.rollouts,
-            &format!("{:.0} % in (gradient)", 100.0 * share),
-        );
+        self.record(
+            Entry {
+                key: full,
+                loss,
+                value: share,
+                particle_substeps: work,
+                push_loss: Some(g.loss),
+                grad: Some(grad),
+            },
+            t0,
+        )?;
         Ok(GradRollout {
             loss,
             share,

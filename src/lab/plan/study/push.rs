@@ -250,18 +250,21 @@ pub fn push_report(rows: &[PushRow], machine: &str) -> String {
     if let Some(m) = multiple {
         // A gradient stroke: one gradient rollout, then forward trials up to the budget.
         let trials = (budget as f64 - (1.0 + STROKE_BACKWARD_COST)).floor();
-        let _ = writeln!(
+        let _ =
+            writeln!(
             md,
-            "**The charge was low.** The backward pass measured in this run cost {m:.2} forward \
+            "**The charge was {}.** The backward pass measured in this run cost {m:.2} forward \
              rollouts ({} gradient and {} forward rollouts timed, one thread each), not \
              {STROKE_BACKWARD_COST}. At the measured multiple a gradient stroke (one gradient \
              rollout and {trials:.0} forward trials) cost {:.1} forward rollouts against \
-             CMA-ES's {budget}: {:+.0} % of its compute, in the gradient's favour in every \
-             comparison below.\n",
+             CMA-ES's {budget}: {:+.0} % of its compute, in the {} favour in every comparison \
+             below.\n",
+            if m > STROKE_BACKWARD_COST { "low" } else { "high" },
             gw.1,
             fw.1,
             1.0 + m + trials,
             100.0 * ((1.0 + m + trials) / budget as f64 - 1.0),
+            if 1.0 + m + trials > budget as f64 { "gradient's" } else { "CMA-ES's" },
         );
     }
     let _ = writeln!(
@@ -373,12 +376,15 @@ pub fn push_report(rows: &[PushRow], machine: &str) -> String {
              the same state with the same budget (the patch starts outside the region, so its \
              share in the region afterwards is the mass the stroke moved in). Over {} \
              instances the gradient moved in {:.1} % on average, CMA-ES {:.1} %; the gradient \
-             moved more on {better}, less on {worse}. One-sided Wilcoxon p = {} that CMA-ES \
+             moved more on {better}, less on {worse}. One-sided Wilcoxon p {} that CMA-ES \
              moves less than the gradient.",
             firsts.len(),
             100.0 * crate::lab::stats::mean(&d),
             100.0 * crate::lab::stats::mean(&c),
-            crate::lab::stats::p_text(crate::lab::stats::wilcoxon_less(&c, &d)),
+            match crate::lab::stats::wilcoxon_less(&c, &d) {
+                Some(p) if p < 1e-3 => "< 0.001".to_string(),
+                p => format!("= {}", crate::lab::stats::p_text(p)),
+            },
         );
     }
     md
