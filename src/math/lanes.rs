@@ -89,6 +89,16 @@ pub trait Vector:
     fn eq(self, o: Self) -> Self::Mask;
     /// `a` where `m` holds, else `b`.
     fn select(m: Self::Mask, a: Self, b: Self) -> Self;
+    /// Lane `l` set to `f(l)`, called for `l = 0, 1, …` in order: a gather of scattered
+    /// scalars, which the AVX types build in registers instead of through memory.
+    #[inline(always)]
+    fn from_fn(mut f: impl FnMut(usize) -> Self::Scalar) -> Self {
+        let mut a = [Self::Scalar::ZERO; MAX_LANES];
+        for (l, v) in a.iter_mut().enumerate().take(Self::LANES) {
+            *v = f(l);
+        }
+        Self::load(&a)
+    }
 }
 
 /// f64 lanes, with the two operations on their bits that `math::elementary`'s `ln` and `exp`
@@ -228,6 +238,10 @@ impl<T: Real, const N: usize> Vector for Arr<T, N> {
             |l| if m.0[l] { a.0[l] } else { b.0[l] },
         ))
     }
+    #[inline(always)]
+    fn from_fn(f: impl FnMut(usize) -> T) -> Self {
+        Arr(std::array::from_fn(f))
+    }
 }
 
 impl<const N: usize> F64Bits for Arr<f64, N> {
@@ -278,7 +292,7 @@ mod avx {
         ($v:ident, $m:ident, $reg:ty, $t:ty, $n:expr, $sfx:ident,
          $set1:ident, $loadu:ident, $storeu:ident, $add:ident, $sub:ident, $mul:ident,
          $div:ident, $sqrt:ident, $and:ident, $andnot:ident, $or:ident, $xor:ident,
-         $cmp:ident, $blendv:ident, $movemask:ident, $full:expr) => {
+         $cmp:ident, $blendv:ident, $movemask:ident, $full:expr, $setr:ident) => {
             /// Four f64 or eight f32 lanes in one AVX register.
             #[derive(Clone, Copy, Debug)]
             pub struct $v($reg);
@@ -379,8 +393,27 @@ mod avx {
                 fn select(m: $m, a: Self, b: Self) -> Self {
                     $v(unsafe { $blendv(b.0, a.0, m.0) })
                 }
+                #[inline(always)]
+                fn from_fn(f: impl FnMut(usize) -> $t) -> Self {
+                    $v($setr(f))
+                }
             }
         };
+    }
+
+    /// The lanes `f(0), f(1), …` inserted into a register, not stored and reloaded: a 256-bit
+    /// load from narrower stores cannot be forwarded and stalls.
+    #[inline(always)]
+    fn setr_pd(mut f: impl FnMut(usize) -> f64) -> __m256d {
+        let (a, b, c, d) = (f(0), f(1), f(2), f(3));
+        // SAFETY: AVX, as for every operation of the type (module docs).
+        unsafe { _mm256_setr_pd(a, b, c, d) }
+    }
+    #[inline(always)]
+    fn setr_ps(f: impl FnMut(usize) -> f32) -> __m256 {
+        let v: [f32; 8] = std::array::from_fn(f);
+        // SAFETY: as above.
+        unsafe { _mm256_setr_ps(v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7]) }
     }
 
     avx_vector!(
@@ -405,7 +438,8 @@ mod avx {
         _mm256_cmp_pd,
         _mm256_blendv_pd,
         _mm256_movemask_pd,
-        0xF
+        0xF,
+        setr_pd
     );
     impl super::F64Bits for F64x4 {
         // SAFETY (both): AVX2's integer intrinsics, in functions compiled for AVX2 (above).
@@ -462,7 +496,8 @@ mod avx {
         _mm256_cmp_ps,
         _mm256_blendv_ps,
         _mm256_movemask_ps,
-        0xFF
+        0xFF,
+        setr_ps
     );
 }
 

@@ -8,25 +8,21 @@
 //! Reads `Grid`, `Position`; writes `Velocity`, `AffineVelocity`.
 
 use crate::components::*;
-use crate::math::kernel::stencil;
+use crate::math::kernel::gather_velocity;
+use crate::math::kernel::lanes::{gather_many, GridView};
 use crate::systems::FiniteWatch;
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-/// Gathers `(v_p, C_p)` for a particle at `x`, contracted one axis at a time
-/// ([`crate::math::kernel::Stencil::node_sums`]): `v_p = Σ w·v_i` and
-/// `C_p = (4/dx²)·Σ w·v_i·d_ipᵀ` factor along the axes, so a node costs a few multiply-adds
-/// instead of its own weight and outer product.
+/// Particles per parallel work item: groups of four in SIMD lanes
+/// ([`crate::math::kernel::lanes`]). Any size gives the same bits (a gather is per particle).
+const CHUNK: usize = 256;
+
+/// Gathers `(v_p, C_p)` for a particle at `x` ([`gather_velocity`]).
 #[inline(always)]
 pub fn gather(grid: &Grid, x: DVec3) -> (DVec3, DMat3) {
-    let dx = grid.dx;
-    let st = stencil((x - grid.origin) / dx);
-    let [bi, bj, bk] = st.base;
-    let sums = st.node_sums(1.0 / dx, |a, b, c| {
-        (grid.velocity[grid.index(bi + a, bj + b, bk) + c], 0.0)
-    });
-    (sums.w_g, sums.w_g_d(st.fx, dx) * (4.0 / (dx * dx)))
+    gather_velocity(&grid.velocity, grid.origin, grid.dx, grid.n, x)
 }
 
 pub fn g2p(
@@ -36,11 +32,17 @@ pub fn g2p(
 ) {
     for (body, x, mut v, mut c) in &mut bodies {
         let watch = FiniteWatch::default();
-        v.0.par_iter_mut()
-            .zip(c.0.par_iter_mut().zip(x.0.par_iter()))
+        let view = GridView {
+            velocity: &grid.velocity,
+            origin: grid.origin,
+            dx: grid.dx,
+            n: grid.n,
+        };
+        v.0.par_chunks_mut(CHUNK)
+            .zip(c.0.par_chunks_mut(CHUNK).zip(x.0.par_chunks(CHUNK)))
             .for_each(|(v, (c, x))| {
-                (*v, *c) = gather(&grid, *x);
-                watch.check(v.is_finite());
+                gather_many(&view, x, v, c);
+                watch.check(v.iter().all(|v| v.is_finite()));
             });
         if let Some(i) = watch.first_nonfinite_vec(&v.0) {
             health.report(Fault {

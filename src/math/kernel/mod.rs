@@ -12,6 +12,8 @@
 
 use glam::{DMat3, DVec3};
 
+pub mod lanes;
+
 /// Stencil of one particle: base node, fractional offset and per-axis weights.
 #[derive(Clone, Copy, Debug)]
 pub struct Stencil {
@@ -210,6 +212,27 @@ impl Stencil {
         out.grad_s *= inv_dx;
         out
     }
+}
+
+/// G2P's gather for a particle at `x`, `(v_p, C_p)` with `v_p = Σ w·v_i` and
+/// `C_p = (4/dx²)·Σ w·v_i·d_ipᵀ`, from node velocities `velocity` on a grid of `n` nodes with
+/// node `i` at `origin + i·dx`: contracted one axis at a time ([`Stencil::node_sums`]), so a
+/// node costs a few multiply-adds instead of its own weight and outer product. [`lanes`] runs
+/// it four particles at a time, to the same bits.
+#[inline(always)]
+pub fn gather_velocity(
+    velocity: &[DVec3],
+    origin: DVec3,
+    dx: f64,
+    n: [usize; 3],
+    x: DVec3,
+) -> (DVec3, DMat3) {
+    let st = stencil((x - origin) / dx);
+    let [bi, bj, bk] = st.base;
+    let sums = st.node_sums(1.0 / dx, |a, b, c| {
+        (velocity[((bi + a) * n[1] + bj + b) * n[2] + bk + c], 0.0)
+    });
+    (sums.w_g, sums.w_g_d(st.fx, dx) * (4.0 / (dx * dx)))
 }
 
 /// `b + M·d_ip` at the nodes of a stencil, with `d_ip = (o − fx)·dx` and `o` the node's integer
