@@ -32,6 +32,7 @@ LEVERS = [
     ("SVD lanes in AVX registers", "89c60e3", "190be08", "backward"),
     ("return mapping in AVX registers, with fdlibm's ln and exp", "f087036", "5ea09d7", "forward"),
     ("return mapping in AVX registers, with fdlibm's ln and exp", "f087036", "5ea09d7", "backward"),
+    ("G2P's gather four particles to an AVX register", "d06238b", "533ae00", "forward"),
 ]
 BEFORE = "5b8b95d"  # the build before this page's levers
 

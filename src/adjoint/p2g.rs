@@ -16,9 +16,8 @@
 
 use crate::adjoint::NonFiniteSeen;
 use crate::components::*;
-use crate::math::kernel::lanes::{dot, node_sums_lanes, AffineLanes, LANES};
-use crate::math::kernel::{stencil, NodeSums, OffsetAffine, Stencil};
-use crate::math::lanes::{Arr, Vector};
+use crate::math::kernel::stencil;
+use crate::math::simd::{vectorized, Kernel};
 use bevy_ecs::prelude::*;
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -75,7 +74,7 @@ pub fn p2g_adjoint(
             .enumerate()
             .for_each(|(chunk, (gx, (gv, ga)))| {
                 let first = chunk * CHUNK;
-                GatherChunk {
+                vectorized(GatherChunk {
                     grid: &grid,
                     x: &start.x[first..first + gx.len()],
                     v: &start.v[first..first + gx.len()],
@@ -87,8 +86,7 @@ pub fn p2g_adjoint(
                     gx,
                     gv,
                     ga,
-                }
-                .run()
+                })
             });
     }
 }
@@ -96,7 +94,7 @@ pub fn p2g_adjoint(
 /// Particles per parallel task: one call into the vectorised loop per chunk.
 const CHUNK: usize = 256;
 
-/// The per-particle gather of the adjoint for a chunk of particles.
+/// The per-particle gather of the adjoint for a chunk of particles (through [`vectorized`]).
 struct GatherChunk<'a> {
     grid: &'a Grid,
     x: &'a [DVec3],
@@ -111,11 +109,10 @@ struct GatherChunk<'a> {
     ga: &'a mut [DMat3],
 }
 
-impl GatherChunk<'_> {
-    /// The chunk's particles, groups of [`LANES`] in lanes ([`node_sums_lanes`], each lane the
-    /// scalar sums to the bit) and the rest one at a time.
+impl Kernel for GatherChunk<'_> {
+    type Output = ();
     #[inline(always)]
-    fn run_lanes<V: Vector<Scalar = f64>>(self) {
+    fn run(self) {
         let Self {
             grid,
             m,
@@ -126,89 +123,30 @@ impl GatherChunk<'_> {
         } = self;
         let dx = grid.dx;
         let inv_dx = 1.0 / dx;
-        let n = grid.n;
-        let node_of = |st: &Stencil, ia: usize, ib: usize, ic: usize| {
+        for (i, (gx, (gv, ga))) in self
+            .gx
+            .iter_mut()
+            .zip(self.gv.iter_mut().zip(self.ga.iter_mut()))
+            .enumerate()
+        {
+            let xp = self.x[i];
+            let mv = self.v[i] * m;
+            let a = self.affine[i];
+            let st = stencil((xp - grid.origin) / dx);
             let [bi, bj, bk] = st.base;
-            ((bi + ia) * n[1] + bj + ib) * n[2] + bk + ic
-        };
-        // `v̄_p`, `Ā_p`, `x̄_p` from a particle's node sums.
-        let finish = |sums: &NodeSums,
-                      st: &Stencil,
-                      a: DMat3,
-                      gx: &mut DVec3,
-                      gv: &mut DVec3,
-                      ga: &mut DMat3| {
+            // `m·v_p + A_p·d_ip` is affine in the node offset; the node sums `Σ w·p̄`,
+            // `Σ w·p̄·dᵀ` and `Σ ∇w·[(m·v_p + A_p·d)·p̄ + m·m̄]` are contracted one axis at a
+            // time. `Σ w·p̄` serves both v̄_p (times m) and the last term of x̄_p (times −A_pᵀ).
+            let t = st.affine(mv, a, dx);
+            let sums = st.node_sums(inv_dx, |ia, ib, ic| {
+                let node = grid.index(bi + ia, bj + ib, bk) + ic;
+                let gp = g_p[node];
+                (gp, t.node(t.row(ia, ib), ic).dot(gp) + m * g_m[node])
+            });
             *gv += sums.w_g * m;
             *ga += sums.w_g_d(st.fx, dx);
             *gx += sums.grad_s - a.transpose() * sums.w_g;
             NonFiniteSeen::check(seen, gx.is_finite() && gv.is_finite() && ga.is_finite());
-        };
-        let len = self.gx.len();
-        let groups = len / LANES * LANES;
-        let mut i = 0;
-        while i < groups {
-            let st: [Stencil; LANES] =
-                std::array::from_fn(|l| stencil((self.x[i + l] - grid.origin) / dx));
-            let a: [DMat3; LANES] = std::array::from_fn(|l| self.affine[i + l]);
-            let t: [OffsetAffine; LANES] =
-                std::array::from_fn(|l| st[l].affine(self.v[i + l] * m, a[l], dx));
-            let t = AffineLanes::<V>::new(&t);
-            let mass = V::splat(m);
-            let sums = node_sums_lanes::<V>(&st, inv_dx, |ia, ib, ic| {
-                let node: [usize; LANES] = std::array::from_fn(|l| node_of(&st[l], ia, ib, ic));
-                let gp = std::array::from_fn(|k| V::from_fn(|l| g_p[node[l]][k]));
-                let s = dot(&t.node(ia, ib, ic), &gp) + mass * V::from_fn(|l| g_m[node[l]]);
-                (gp, s)
-            });
-            for l in 0..LANES {
-                let p = i + l;
-                finish(
-                    &sums[l],
-                    &st[l],
-                    a[l],
-                    &mut self.gx[p],
-                    &mut self.gv[p],
-                    &mut self.ga[p],
-                );
-            }
-            i += LANES;
-        }
-        for p in groups..len {
-            let a = self.affine[p];
-            let st = stencil((self.x[p] - grid.origin) / dx);
-            // `m·v_p + A_p·d_ip` is affine in the node offset; the node sums `Σ w·p̄`,
-            // `Σ w·p̄·dᵀ` and `Σ ∇w·[(m·v_p + A_p·d)·p̄ + m·m̄]` are contracted one axis at a
-            // time. `Σ w·p̄` serves both v̄_p (times m) and the last term of x̄_p (times −A_pᵀ).
-            let t = st.affine(self.v[p] * m, a, dx);
-            let sums = st.node_sums(inv_dx, |ia, ib, ic| {
-                let node = node_of(&st, ia, ib, ic);
-                let gp = g_p[node];
-                (gp, t.node(t.row(ia, ib), ic).dot(gp) + m * g_m[node])
-            });
-            finish(
-                &sums,
-                &st,
-                a,
-                &mut self.gx[p],
-                &mut self.gv[p],
-                &mut self.ga[p],
-            );
         }
     }
-
-    /// [`GatherChunk::run_lanes`] in AVX registers where the CPU has AVX2.
-    fn run(self) {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2, which is all the function's target features ask for.
-            return unsafe { gather_chunk_avx2(self) };
-        }
-        self.run_lanes::<Arr<f64, LANES>>()
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn gather_chunk_avx2(k: GatherChunk) {
-    k.run_lanes::<crate::math::lanes::F64x4>()
 }

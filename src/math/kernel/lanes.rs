@@ -10,7 +10,7 @@
 //! transposing them in registers was measured at 0.98× the stage's time, within the noise, and
 //! left out.
 
-use super::{gather_velocity, stencil, weights_1d_deriv, NodeSums, OffsetAffine, Stencil};
+use super::{gather_velocity, stencil, Stencil};
 use crate::math::lanes::{Arr, Vector};
 use glam::{DMat3, DVec3};
 
@@ -35,111 +35,9 @@ fn axpy<V: Vector<Scalar = f64>>(acc: &mut V3<V>, g: &V3<V>, w: V) {
     }
 }
 
-/// [`super::Stencil::node_sums`] of [`LANES`] particles at once, lane `l` over the stencil
-/// `st[l]`: `node(a, b, c)` gives, for every lane, the vector `g_i` and the scalar `s_i` at node
-/// `(a, b, c)` of its stencil. Lane by lane the scalar function's operations in its order, so
-/// its sums to the bit.
-#[inline(always)]
-pub fn node_sums_lanes<V: Vector<Scalar = f64>>(
-    st: &[Stencil; LANES],
-    inv_dx: f64,
-    mut node: impl FnMut(usize, usize, usize) -> (V3<V>, V),
-) -> [NodeSums; LANES] {
-    let lane = |f: &dyn Fn(&Stencil) -> f64| V::from_fn(|l| f(&st[l]));
-    let w: [[V; 3]; 3] =
-        std::array::from_fn(|axis| std::array::from_fn(|i| lane(&|s| s.w[axis][i])));
-    let dw: [[V; 3]; 3] = std::array::from_fn(|axis| {
-        std::array::from_fn(|i| lane(&|s| weights_1d_deriv(s.fx[axis])[i]))
-    });
-    let [wx, wy, wz] = w;
-    let zero = V::splat(0.0);
-    let idx = |i: usize| V::splat(i as f64);
-    let mut w_g = [zero; 3];
-    let mut w_g_o = [[zero; 3]; 3];
-    let mut grad_s = [zero; 3];
-    for a in 0..3 {
-        let (mut y_g, mut y_gb, mut y_gc) = ([zero; 3], [zero; 3], [zero; 3]);
-        let (mut y_ww, mut y_dw, mut y_wd) = (zero, zero, zero);
-        for b in 0..3 {
-            let (mut z_g, mut z_gc) = ([zero; 3], [zero; 3]);
-            let (mut z_w, mut z_d) = (zero, zero);
-            for c in 0..3 {
-                let (g, s) = node(a, b, c);
-                axpy(&mut z_g, &g, wz[c]);
-                axpy(&mut z_gc, &g, wz[c] * idx(c));
-                z_w = z_w + s * wz[c];
-                z_d = z_d + s * dw[2][c];
-            }
-            axpy(&mut y_g, &z_g, wy[b]);
-            axpy(&mut y_gb, &z_g, wy[b] * idx(b));
-            axpy(&mut y_gc, &z_gc, wy[b]);
-            y_ww = y_ww + z_w * wy[b];
-            y_dw = y_dw + z_w * dw[1][b];
-            y_wd = y_wd + z_d * wy[b];
-        }
-        axpy(&mut w_g, &y_g, wx[a]);
-        axpy(&mut w_g_o[0], &y_g, wx[a] * idx(a));
-        axpy(&mut w_g_o[1], &y_gb, wx[a]);
-        axpy(&mut w_g_o[2], &y_gc, wx[a]);
-        grad_s[0] = grad_s[0] + y_ww * dw[0][a];
-        grad_s[1] = grad_s[1] + y_dw * wx[a];
-        grad_s[2] = grad_s[2] + y_wd * wx[a];
-    }
-    let inv_dx = V::splat(inv_dx);
-    let unpack = |v: &V3<V>| {
-        let mut a = [[0.0; LANES]; 3];
-        for (v, a) in v.iter().zip(&mut a) {
-            v.store(a);
-        }
-        move |l: usize| DVec3::new(a[0][l], a[1][l], a[2][l])
-    };
-    let w_g = unpack(&w_g);
-    let o = w_g_o.map(|c| unpack(&c));
-    let grad_s = unpack(&grad_s.map(|g| g * inv_dx));
-    std::array::from_fn(|l| NodeSums {
-        w_g: w_g(l),
-        w_g_o: DMat3::from_cols(o[0](l), o[1](l), o[2](l)),
-        grad_s: grad_s(l),
-    })
-}
-
-/// The lanes of [`LANES`] [`OffsetAffine`]s, `b + M·d_ip` at the nodes of each lane's stencil.
-#[derive(Clone, Copy)]
-pub struct AffineLanes<V> {
-    first: V3<V>,
-    cols: [V3<V>; 3],
-}
-
-impl<V: Vector<Scalar = f64>> AffineLanes<V> {
-    #[inline(always)]
-    pub fn new(t: &[OffsetAffine; LANES]) -> Self {
-        Self {
-            first: std::array::from_fn(|k| V::from_fn(|l| t[l].first[k])),
-            cols: std::array::from_fn(|j| std::array::from_fn(|k| V::from_fn(|l| t[l].cols[j][k]))),
-        }
-    }
-
-    /// [`OffsetAffine::node`] of [`OffsetAffine::row`]: the value at node `(a, b, c)`.
-    #[inline(always)]
-    pub fn node(&self, a: usize, b: usize, c: usize) -> V3<V> {
-        let idx = |i: usize| V::splat(i as f64);
-        std::array::from_fn(|k| {
-            let row = self.first[k] + self.cols[0][k] * idx(a) + self.cols[1][k] * idx(b);
-            row + self.cols[2][k] * idx(c)
-        })
-    }
-}
-
-/// `DVec3::dot` in lanes, glam's order: `(x·x′ + y·y′) + z·z′`.
-#[inline(always)]
-pub fn dot<V: Vector<Scalar = f64>>(a: &V3<V>, b: &V3<V>) -> V {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 /// The gather of `LANES` particles whose stencils are `st`, lane by lane the operations of
 /// [`super::Stencil::node_sums`] (the sums `Σ w·g` and `Σ w·g·oᵀ` only) and
-/// [`super::NodeSums::w_g_d`]. Its own loop, not [`node_sums_lanes`]: through that one (whose
-/// gradient sums the gather does not read) the stage took about 1.1× its time.
+/// [`super::NodeSums::w_g_d`].
 // The loops index by node offset, as the scalar `node_sums` they mirror does.
 #[allow(clippy::needless_range_loop)]
 #[inline(always)]
@@ -313,86 +211,6 @@ mod tests {
             let (mut v, mut c) = (vec![DVec3::ZERO; count], vec![DMat3::ZERO; count]);
             gather_many(&grid, x, &mut v, &mut c);
             assert_eq!(bits_of(&v, &c), want, "dispatched lanes");
-        }
-    }
-
-    fn sums_bits(s: &NodeSums) -> Vec<u64> {
-        [s.w_g.to_array(), s.grad_s.to_array()]
-            .into_iter()
-            .flatten()
-            .chain(s.w_g_o.to_cols_array())
-            .map(f64::to_bits)
-            .collect()
-    }
-
-    /// The node sums of four particles with P2G's adjoint node values (`g` a node's vector, `s`
-    /// the dot of the particle's affine value there with it plus a scalar), in lanes and one
-    /// particle at a time.
-    fn adjoint_like_sums<V: Vector<Scalar = f64>>(
-        st: &[Stencil; LANES],
-        t: &[OffsetAffine; LANES],
-        g: impl Fn(usize, usize, usize, usize) -> (DVec3, f64),
-    ) -> [NodeSums; LANES] {
-        let tl = AffineLanes::<V>::new(t);
-        node_sums_lanes::<V>(st, 40.0, |a, b, c| {
-            let gv = std::array::from_fn(|k| V::from_fn(|l| g(l, a, b, c).0[k]));
-            let s = dot(&tl.node(a, b, c), &gv) + V::splat(0.7) * V::from_fn(|l| g(l, a, b, c).1);
-            (gv, s)
-        })
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn adjoint_like_sums_avx2(
-        st: &[Stencil; LANES],
-        t: &[OffsetAffine; LANES],
-        g: impl Fn(usize, usize, usize, usize) -> (DVec3, f64),
-    ) -> [NodeSums; LANES] {
-        adjoint_like_sums::<crate::math::lanes::F64x4>(st, t, g)
-    }
-
-    /// [`node_sums_lanes`], [`AffineLanes`] and [`dot`] give, lane by lane, the scalar
-    /// [`Stencil::node_sums`] of `OffsetAffine::node(..).dot(g) + m·s` to the bit, on arrays
-    /// and (where the CPU has AVX2) in registers.
-    #[test]
-    fn node_sums_in_lanes_equal_the_scalar_sums() {
-        let xs = [
-            DVec3::new(3.7, 5.2, 4.95),
-            DVec3::new(2.5, 2.5000001, 7.4999),
-            DVec3::new(10.01, 3.33, 6.66),
-            DVec3::new(4.5, 4.0, 5.25),
-        ];
-        let st: [Stencil; LANES] = xs.map(stencil);
-        let t: [OffsetAffine; LANES] = std::array::from_fn(|l| {
-            let k = l as f64;
-            let m = DMat3::from_cols_array(&std::array::from_fn(|i| (1.1 * (i as f64 + k)).sin()));
-            st[l].affine(DVec3::new(0.3 + k, -1.2, 0.8 * k), m, 0.025)
-        });
-        let g = |l: usize, a: usize, b: usize, c: usize| {
-            let i = (9 * a + 3 * b + c + 27 * l) as f64;
-            let v = DVec3::new((1.3 * i).sin(), (0.7 * i + 0.2).cos(), -0.0);
-            (v, (2.1 * i).cos())
-        };
-        let want: Vec<Vec<u64>> = (0..LANES)
-            .map(|l| {
-                let sums = st[l].node_sums(40.0, |a, b, c| {
-                    let (gv, s) = g(l, a, b, c);
-                    (gv, t[l].node(t[l].row(a, b), c).dot(gv) + 0.7 * s)
-                });
-                sums_bits(&sums)
-            })
-            .collect();
-        let arr = adjoint_like_sums::<Arr<f64, LANES>>(&st, &t, g);
-        assert_eq!(
-            arr.iter().map(sums_bits).collect::<Vec<_>>(),
-            want,
-            "arrays"
-        );
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2.
-            let avx = unsafe { adjoint_like_sums_avx2(&st, &t, g) };
-            assert_eq!(avx.iter().map(sums_bits).collect::<Vec<_>>(), want, "AVX");
         }
     }
 }
