@@ -46,12 +46,16 @@ fn gather_packed<V: Vector<Scalar = f64>>(
     st: &[Stencil; LANES],
 ) -> [(DVec3, DMat3); LANES] {
     let [n1, n2] = [grid.n[1], grid.n[2]];
-    let lane = |f: &dyn Fn(&Stencil) -> f64| V::from_fn(|l| f(&st[l]));
-    let w: [[V; 3]; 3] =
-        std::array::from_fn(|axis| std::array::from_fn(|i| lane(&|s| s.w[axis][i])));
+    // No closure here returns a vector (`docs/design.md` §11): the ones below give scalars.
+    let mut w = [[V::splat(0.0); 3]; 3];
+    for (axis, w) in w.iter_mut().enumerate() {
+        for (i, w) in w.iter_mut().enumerate() {
+            *w = V::from_fn(|l| st[l].w[axis][i]);
+        }
+    }
     let [wx, wy, wz] = w;
     let zero = V::splat(0.0);
-    let idx = |i: usize| V::splat(i as f64);
+    let idx: [V; 3] = [V::splat(0.0), V::splat(1.0), V::splat(2.0)];
     let mut w_g = [zero; 3];
     let mut w_g_o = [[zero; 3]; 3];
     for a in 0..3 {
@@ -65,26 +69,33 @@ fn gather_packed<V: Vector<Scalar = f64>>(
             });
             let (mut z_g, mut z_gc) = ([zero; 3], [zero; 3]);
             for c in 0..3 {
-                let g: V3<V> = std::array::from_fn(|k| V::from_fn(|l| rows[l][c][k]));
+                let g: V3<V> = [
+                    V::from_fn(|l| rows[l][c].x),
+                    V::from_fn(|l| rows[l][c].y),
+                    V::from_fn(|l| rows[l][c].z),
+                ];
                 axpy(&mut z_g, &g, wz[c]);
-                axpy(&mut z_gc, &g, wz[c] * idx(c));
+                axpy(&mut z_gc, &g, wz[c] * idx[c]);
             }
             axpy(&mut y_g, &z_g, wy[b]);
-            axpy(&mut y_gb, &z_g, wy[b] * idx(b));
+            axpy(&mut y_gb, &z_g, wy[b] * idx[b]);
             axpy(&mut y_gc, &z_gc, wy[b]);
         }
         axpy(&mut w_g, &y_g, wx[a]);
-        axpy(&mut w_g_o[0], &y_g, wx[a] * idx(a));
+        axpy(&mut w_g_o[0], &y_g, wx[a] * idx[a]);
         axpy(&mut w_g_o[1], &y_gb, wx[a]);
         axpy(&mut w_g_o[2], &y_gc, wx[a]);
     }
     // `w_g_d`: column j is (Σ w·g·o_j − (Σ w·g)·fx_j)·dx, then the whole matrix times 4/dx².
     let dx = V::splat(grid.dx);
     let scale = V::splat(4.0 / (grid.dx * grid.dx));
-    let fx: V3<V> = std::array::from_fn(|j| lane(&|s| s.fx[j]));
-    let cols: [V3<V>; 3] = std::array::from_fn(|j| {
-        std::array::from_fn(|k| (w_g_o[j][k] - w_g[k] * fx[j]) * dx * scale)
-    });
+    let mut cols = [[zero; 3]; 3];
+    for (j, col) in cols.iter_mut().enumerate() {
+        let fx = V::from_fn(|l| st[l].fx[j]);
+        for (k, e) in col.iter_mut().enumerate() {
+            *e = (w_g_o[j][k] - w_g[k] * fx) * dx * scale;
+        }
+    }
     let mut v = [[0.0; LANES]; 3];
     let mut c = [[[0.0; LANES]; 3]; 3];
     for k in 0..3 {
