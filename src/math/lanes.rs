@@ -89,8 +89,7 @@ pub trait Vector:
     fn eq(self, o: Self) -> Self::Mask;
     /// `a` where `m` holds, else `b`.
     fn select(m: Self::Mask, a: Self, b: Self) -> Self;
-    /// Lane `l` set to `f(l)`, called for `l = 0, 1, …` in order: a gather of scattered
-    /// scalars, which the AVX types build in registers instead of through memory.
+    /// Lane `l` set to `f(l)`, called in lane order (the AVX types insert, not reload).
     #[inline(always)]
     fn from_fn(mut f: impl FnMut(usize) -> Self::Scalar) -> Self {
         let mut a = [Self::Scalar::ZERO; MAX_LANES];
