@@ -350,20 +350,7 @@ impl Push {
         let mut sim = self.stroke_simulation(n, &st)?;
         let steps = sim.horizon;
         sim.run(steps, |_| {})?;
-        let states = sim.body_states();
-        let (loss, share) = (self.loss(&states), self.share(&states));
-        let work = (sim.particle_count() * steps * sim.params().substeps) as f64;
-        self.record(
-            Entry {
-                key: full,
-                loss,
-                value: share,
-                particle_substeps: work,
-                push_loss: None,
-                grad: None,
-            },
-            t0,
-        )?;
+        let (loss, share, states) = self.record(&mut sim, full, None, t0)?;
         Ok((loss, share, Some(states)))
     }
 
@@ -382,10 +369,34 @@ impl Push {
         Some(e)
     }
 
-    /// A simulated rollout: its time (a gradient rollout's where the entry has a gradient), its
-    /// compute, its journal line and the progress message.
-    fn record(&mut self, e: Entry, t0: Instant) -> anyhow::Result<()> {
-        let gradient = e.grad.is_some();
+    /// A simulated rollout, `sim` after its horizon, with its push loss and gradient if a
+    /// backward pass ran: its loss, share and final state, and its time (a gradient rollout's
+    /// where it has a gradient), its compute (the backward pass at the multiple of a forward the
+    /// plan budgets with), its journal line and the progress message.
+    fn record(
+        &mut self,
+        sim: &mut Simulation,
+        key: String,
+        backward: Option<(f64, [f64; 5])>,
+        t0: Instant,
+    ) -> anyhow::Result<(f64, f64, Vec<BodyState>)> {
+        let states = sim.body_states();
+        let (loss, share) = (self.loss(&states), self.share(&states));
+        let gradient = backward.is_some();
+        let charge = if gradient {
+            1.0 + STROKE_BACKWARD_COST
+        } else {
+            1.0
+        };
+        let e = Entry {
+            key,
+            loss,
+            value: share,
+            particle_substeps: (sim.particle_count() * sim.horizon * sim.params().substeps) as f64
+                * charge,
+            push_loss: backward.map(|b| b.0),
+            grad: backward.map(|b| b.1),
+        };
         let timing = if gradient {
             self.backward += 1;
             &mut self.gradient_timing
@@ -402,7 +413,7 @@ impl Push {
         );
         self.journal.put(e)?;
         (self.progress)(self.rollouts, &message);
-        Ok(())
+        Ok((loss, share, states))
     }
 
     /// The node a stroke leads to.

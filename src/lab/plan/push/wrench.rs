@@ -23,8 +23,8 @@ use crate::adjoint::tape::gradient;
 use crate::components::BodyState;
 use crate::lab::optim::cma::{reflect, run_sequential};
 use crate::lab::optim::hybrid::TrustRegion;
+use crate::lab::plan::journal::key;
 use crate::lab::plan::journal::node_seed;
-use crate::lab::plan::journal::{key, Entry};
 use crate::lab::plan::stroke::{phi_gradient, Stroke};
 use crate::rollout::DEFAULT_TAPE_BUDGET;
 use crate::scene::plan::StrokeOptimiser;
@@ -154,22 +154,7 @@ impl Push {
             pick(&g.tool_start_rotation),
             g.tool_controls(name).unwrap_or(&[]),
         );
-        let states = sim.body_states();
-        let (loss, share) = (self.loss(&states), self.share(&states));
-        // The backward pass at the multiple of a forward that the plan budgets with.
-        let work = (sim.particle_count() * steps * sim.params().substeps) as f64
-            * (1.0 + STROKE_BACKWARD_COST);
-        self.record(
-            Entry {
-                key: full,
-                loss,
-                value: share,
-                particle_substeps: work,
-                push_loss: Some(g.loss),
-                grad: Some(grad),
-            },
-            t0,
-        )?;
+        let (loss, share, states) = self.record(&mut sim, full, Some((g.loss, grad)), t0)?;
         Ok(GradRollout {
             loss,
             share,
