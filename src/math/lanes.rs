@@ -90,14 +90,7 @@ pub trait Vector:
     /// `a` where `m` holds, else `b`.
     fn select(m: Self::Mask, a: Self, b: Self) -> Self;
     /// Lane `l` set to `f(l)`, called in lane order (the AVX types insert, not reload).
-    #[inline(always)]
-    fn from_fn(mut f: impl FnMut(usize) -> Self::Scalar) -> Self {
-        let mut a = [Self::Scalar::ZERO; MAX_LANES];
-        for (l, v) in a.iter_mut().enumerate().take(Self::LANES) {
-            *v = f(l);
-        }
-        Self::load(&a)
-    }
+    fn from_fn(f: impl FnMut(usize) -> Self::Scalar) -> Self;
 }
 
 /// f64 lanes, with the two operations on their bits that `math::elementary`'s `ln` and `exp`

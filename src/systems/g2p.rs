@@ -8,22 +8,15 @@
 //! Reads `Grid`, `Position`; writes `Velocity`, `AffineVelocity`.
 
 use crate::components::*;
-use crate::math::kernel::gather_velocity;
-use crate::math::kernel::lanes::{gather_many, GridView};
+use crate::math::kernel::lanes::gather_many;
+use crate::math::kernel::GridView;
 use crate::systems::FiniteWatch;
 use bevy_ecs::prelude::*;
-use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 /// Particles per parallel work item: groups of four in SIMD lanes
 /// ([`crate::math::kernel::lanes`]). Any size gives the same bits (a gather is per particle).
 const CHUNK: usize = 256;
-
-/// Gathers `(v_p, C_p)` for a particle at `x` ([`gather_velocity`]).
-#[inline(always)]
-pub fn gather(grid: &Grid, x: DVec3) -> (DVec3, DMat3) {
-    gather_velocity(&grid.velocity, grid.origin, grid.dx, grid.n, x)
-}
 
 pub fn g2p(
     grid: Res<Grid>,

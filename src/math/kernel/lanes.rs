@@ -7,24 +7,15 @@
 //! arithmetic: the contraction's ~500 multiplies and adds per particle run four to an
 //! instruction. The 27 node velocities of each particle are read one by one and inserted into
 //! the registers ([`Vector::from_fn`]); loading each row of three nodes as two 4-wide loads and
-//! transposing them in registers was measured at 0.98× the stage's time, within the noise, and
-//! left out.
+//! transposing them in registers was measured at 0.95–1.00× the stage's time, within the noise,
+//! and left out.
 
-use super::{gather_velocity, stencil, Stencil};
+use super::{gather_velocity, stencil, GridView, Stencil};
 use crate::math::lanes::{Arr, Vector};
 use glam::{DMat3, DVec3};
 
 /// Particles per group.
 pub const LANES: usize = 4;
-
-/// Where a grid's node velocities are and how they are laid out (x-major, z fastest).
-#[derive(Clone, Copy, Debug)]
-pub struct GridView<'a> {
-    pub velocity: &'a [DVec3],
-    pub origin: DVec3,
-    pub dx: f64,
-    pub n: [usize; 3],
-}
 
 type V3<V> = [V; 3];
 
@@ -134,7 +125,7 @@ fn gather_all<V: Vector<Scalar = f64>>(
     }
     let tail = xs.remainder().iter();
     for ((x, v), c) in tail.zip(vs.into_remainder()).zip(cs.into_remainder()) {
-        (*v, *c) = gather_velocity(grid.velocity, grid.origin, grid.dx, grid.n, *x);
+        (*v, *c) = gather_velocity(grid, *x);
     }
 }
 
@@ -213,7 +204,7 @@ mod tests {
             let x = &x[..count];
             let (mut v, mut c) = (vec![DVec3::ZERO; count], vec![DMat3::ZERO; count]);
             for (p, (v, c)) in x.iter().zip(v.iter_mut().zip(c.iter_mut())) {
-                (*v, *c) = gather_velocity(grid.velocity, grid.origin, grid.dx, n, *p);
+                (*v, *c) = gather_velocity(&grid, *p);
             }
             let want = bits_of(&v, &c);
             let (mut v, mut c) = (vec![DVec3::ZERO; count], vec![DMat3::ZERO; count]);

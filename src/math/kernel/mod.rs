@@ -214,23 +214,29 @@ impl Stencil {
     }
 }
 
+/// Where a grid's node velocities are and how they are laid out (x-major, z fastest).
+#[derive(Clone, Copy, Debug)]
+pub struct GridView<'a> {
+    pub velocity: &'a [DVec3],
+    pub origin: DVec3,
+    pub dx: f64,
+    pub n: [usize; 3],
+}
+
 /// G2P's gather for a particle at `x`, `(v_p, C_p)` with `v_p = Σ w·v_i` and
-/// `C_p = (4/dx²)·Σ w·v_i·d_ipᵀ`, from node velocities `velocity` on a grid of `n` nodes with
-/// node `i` at `origin + i·dx`: contracted one axis at a time ([`Stencil::node_sums`]), so a
-/// node costs a few multiply-adds instead of its own weight and outer product. [`lanes`] runs
-/// it four particles at a time, to the same bits.
+/// `C_p = (4/dx²)·Σ w·v_i·d_ipᵀ`, from the node velocities of `grid`: contracted one axis at a
+/// time ([`Stencil::node_sums`]), so a node costs a few multiply-adds instead of its own weight
+/// and outer product. [`lanes`] runs it four particles at a time, to the same bits.
 #[inline(always)]
-pub fn gather_velocity(
-    velocity: &[DVec3],
-    origin: DVec3,
-    dx: f64,
-    n: [usize; 3],
-    x: DVec3,
-) -> (DVec3, DMat3) {
-    let st = stencil((x - origin) / dx);
+pub fn gather_velocity(grid: &GridView, x: DVec3) -> (DVec3, DMat3) {
+    let (dx, n) = (grid.dx, grid.n);
+    let st = stencil((x - grid.origin) / dx);
     let [bi, bj, bk] = st.base;
     let sums = st.node_sums(1.0 / dx, |a, b, c| {
-        (velocity[((bi + a) * n[1] + bj + b) * n[2] + bk + c], 0.0)
+        (
+            grid.velocity[((bi + a) * n[1] + bj + b) * n[2] + bk + c],
+            0.0,
+        )
     });
     (sums.w_g, sums.w_g_d(st.fx, dx) * (4.0 / (dx * dx)))
 }
