@@ -31,21 +31,6 @@ impl Node {
         momentum: DVec3::ZERO,
         mass: 0.0,
     };
-
-    /// `[momentum.x, momentum.y, momentum.z, mass]`, the node's memory as one array.
-    #[inline(always)]
-    pub fn lanes(&self) -> &[f64; 4] {
-        // SAFETY: `Node` is `repr(C)`: a `DVec3` (three f64 in order, `repr(C)` in glam) and an
-        // f64, 32 bytes with no padding, aligned at least as an `[f64; 4]`.
-        unsafe { &*(self as *const Node).cast::<[f64; 4]>() }
-    }
-
-    /// [`Node::lanes`], writable.
-    #[inline(always)]
-    pub fn lanes_mut(&mut self) -> &mut [f64; 4] {
-        // SAFETY: as in `lanes`; every bit pattern of the array is a valid `Node`.
-        unsafe { &mut *(self as *mut Node).cast::<[f64; 4]>() }
-    }
 }
 
 /// Grid nodes, stored with x slowest: `index = (i·ny + j)·nz + k`. The x-major layout makes a

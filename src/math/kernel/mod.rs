@@ -258,13 +258,6 @@ impl OffsetAffine {
         self.first + self.cols[0] * a as f64 + self.cols[1] * b as f64
     }
 
-    /// The value at the first node and the three columns' steps, `(first, [cols])`: node
-    /// `(a, b, c)` is `((first + cols[0]·a) + cols[1]·b) + cols[2]·c`, in that order.
-    #[inline(always)]
-    pub fn parts(&self) -> (DVec3, [DVec3; 3]) {
-        (self.first, self.cols)
-    }
-
     /// The value at node `(a, b, c)` from its row's [`OffsetAffine::row`].
     #[inline(always)]
     pub fn node(&self, row: DVec3, c: usize) -> DVec3 {
