@@ -30,11 +30,10 @@ fn decompose<const N: usize>(ft: &[DMat3], f: &mut SvdFactors, kernel: Kernel<N>
         .zip(f.u.par_chunks_mut(N))
         .zip(f.s.par_chunks_mut(N).zip(f.v.par_chunks_mut(N)))
         .for_each(|((ft, u), (s, v))| {
-            // The warm starts are read before the group's results overwrite them.
-            let mut v0 = [DMat3::IDENTITY; N];
-            v0[..v.len()].copy_from_slice(v);
-            svd3_warm_group(kernel, ft, &v0[..v.len()], |l, d| {
+            // The warm starts are read in place, before the group's results overwrite them.
+            let group = svd3_warm_group(kernel, ft, v);
+            for (l, d) in group.into_iter().take(v.len()).enumerate() {
                 (u[l], s[l], v[l]) = (d.u, d.s, d.v);
-            });
+            }
         });
 }
