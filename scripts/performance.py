@@ -33,6 +33,7 @@ LEVERS = [
     ("return mapping in AVX registers, with fdlibm's ln and exp", "f087036", "5ea09d7", "forward"),
     ("return mapping in AVX registers, with fdlibm's ln and exp", "f087036", "5ea09d7", "backward"),
     ("G2P's gather four particles to an AVX register", "d06238b", "533ae00", "forward"),
+    ("SVD groups handed to the lane kernel in place", "ba0e397", "d346914", "forward"),
 ]
 BEFORE = "5b8b95d"  # the build before this page's levers
 
