@@ -95,10 +95,7 @@ fn elastic_energy_sum(fs: &[DMat3], mu: f64, lambda: f64) -> f64 {
     let mut sum = 0.0;
     for group in fs.chunks(LANES) {
         let v0 = &[DMat3::IDENTITY; LANES][..group.len()];
-        for d in svd3_warm_group(svd3_warm_lanes, group, v0)
-            .iter()
-            .take(group.len())
-        {
+        for d in svd3_warm_group(svd3_warm_lanes, group, v0) {
             sum += hencky_energy(hencky(d.s), mu, lambda);
         }
     }

@@ -31,8 +31,7 @@ fn decompose<const N: usize>(ft: &[DMat3], f: &mut SvdFactors, kernel: Kernel<N>
         .zip(f.s.par_chunks_mut(N).zip(f.v.par_chunks_mut(N)))
         .for_each(|((ft, u), (s, v))| {
             // The warm starts are read in place, before the group's results overwrite them.
-            let group = svd3_warm_group(kernel, ft, v);
-            for (l, d) in group.into_iter().take(v.len()).enumerate() {
+            for (l, d) in svd3_warm_group(kernel, ft, v).enumerate() {
                 (u[l], s[l], v[l]) = (d.u, d.s, d.v);
             }
         });

@@ -309,23 +309,29 @@ pub fn svd3_warm_lanes(f: &[DMat3; LANES], v0: &[DMat3; LANES]) -> [Svd3; LANES]
 /// A lane kernel ([`svd3_warm_lanes`] or [`svd3_warm_lanes_f32`]).
 pub type Kernel<const N: usize> = fn(&[DMat3; N], &[DMat3; N]) -> [Svd3; N];
 
-/// `kernel` on up to `N` matrices, `f[i]` warm-started from `v0[i]`: the results, the first
-/// `f.len()` of which are the matrices' decompositions. A full group goes to the kernel in
-/// place; a shorter one (the end of a particle array) is padded with identities whose lanes
-/// are dropped: a lane's result does not depend on its neighbours, so the padding changes no
-/// bit (in f64 the results are [`svd3_warm`]'s on each matrix). Copying every group into padded
-/// arrays, as this did before, cost a `memcpy` call per array and group; with the SVD stage's
-/// own copy of the warm starts, 2.6 % of `sand_box`'s forward.
+/// `kernel` on up to `N` matrices, `f[i]` warm-started from `v0[i]`: the decompositions of the
+/// `f.len()` matrices, in order. A full group goes to the kernel where it lies (a copy of
+/// dynamic length would be a `memcpy` call per group); a shorter one (the end of a particle
+/// array) is padded with identities whose lanes are dropped: a lane's result does not depend on
+/// its neighbours, so the padding changes no bit (in f64 the results are [`svd3_warm`]'s on
+/// each matrix). The results are owned, so the caller may overwrite the warm starts with them.
 #[inline(always)]
-pub fn svd3_warm_group<const N: usize>(kernel: Kernel<N>, f: &[DMat3], v0: &[DMat3]) -> [Svd3; N] {
-    if let (Ok(f), Ok(v0)) = (<&[DMat3; N]>::try_from(f), <&[DMat3; N]>::try_from(v0)) {
-        return kernel(f, v0);
-    }
-    let mut fl = [DMat3::IDENTITY; N];
-    let mut vl = [DMat3::IDENTITY; N];
-    fl[..f.len()].copy_from_slice(f);
-    vl[..v0.len()].copy_from_slice(v0);
-    kernel(&fl, &vl)
+pub fn svd3_warm_group<const N: usize>(
+    kernel: Kernel<N>,
+    f: &[DMat3],
+    v0: &[DMat3],
+) -> std::iter::Take<std::array::IntoIter<Svd3, N>> {
+    let out = match (<&[DMat3; N]>::try_from(f), <&[DMat3; N]>::try_from(v0)) {
+        (Ok(f), Ok(v0)) => kernel(f, v0),
+        _ => {
+            let mut fl = [DMat3::IDENTITY; N];
+            let mut vl = [DMat3::IDENTITY; N];
+            fl[..f.len()].copy_from_slice(f);
+            vl[..v0.len()].copy_from_slice(v0);
+            kernel(&fl, &vl)
+        }
+    };
+    out.into_iter().take(f.len())
 }
 
 /// [`svd3_warm_lanes_body`] in AVX registers (four f64 lanes each). Rust never fuses a multiply
