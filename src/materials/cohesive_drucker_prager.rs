@@ -9,16 +9,13 @@
 //! none). A separate, lower cut-off would be a second parameter no test a laboratory runs on a
 //! powder (an angle of repose, a shear cell) identifies.
 
-use super::drucker_prager::update_many_lanes;
+use super::drucker_prager::{update_many_lanes, ConeCache};
 use super::{
-    check_elastic, check_range, material_adj, FdStep, Group, Material, Param, Saved, UpdateAdj,
-    Updated, POISSON_RATIO, YOUNGS_MODULUS,
+    check_elastic, check_range, FdStep, Group, Material, Param, Saved, UpdateAdj, Updated,
+    POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
-use crate::math::return_map::{
-    cohesion_trace, cohesion_trace_adj, dp_alpha, dp_alpha_adj, dp_project_cohesive_adj, dp_update,
-    hencky_adj, kirchhoff_principal, kirchhoff_principal_adj, lame, Cone, DpUpdate,
-};
+use crate::math::return_map::{dp_update, lame, DpUpdate};
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -42,20 +39,7 @@ pub struct CohesiveDruckerPrager {
     #[serde(default)]
     pub cohesion: f64,
     #[serde(skip)]
-    cache: Option<Cache>,
-}
-
-#[derive(Clone, Debug, PartialEq)]
-struct Cache {
-    mu: f64,
-    lambda: f64,
-    alpha: f64,
-    /// The apex's strain trace `c·cot φ/K`.
-    tr_c: f64,
-    /// `(∂(μ, λ)/∂E, ∂(μ, λ)/∂ν)`.
-    d_lame: [(f64, f64); 2],
-    /// `∂α/∂φ` per degree.
-    d_alpha: f64,
+    cache: Option<ConeCache>,
 }
 
 impl CohesiveDruckerPrager {
@@ -70,57 +54,17 @@ impl CohesiveDruckerPrager {
         }
     }
 
-    fn cache(&self) -> &Cache {
+    fn cache(&self) -> &ConeCache {
         self.cache
             .as_ref()
             .expect("CohesiveDruckerPrager::prepared() is called when the body is built")
     }
 
-    /// The cone, its apex at the cohesion's strain trace.
-    fn cone(&self) -> Cone {
-        let c = self.cache();
-        Cone {
-            mu: c.mu,
-            lambda: c.lambda,
-            tr_c: c.tr_c,
-        }
-    }
-
     /// The forward update and the intermediates its adjoint reads (one function for both).
     #[inline(always)]
     fn project(&self, sigma: DVec3) -> DpUpdate {
-        dp_update(sigma, self.cache().alpha, self.cone())
-    }
-
-    fn adjoint_of(
-        &self,
-        sigma: DVec3,
-        p: &DpUpdate,
-        g_sigma_new: DVec3,
-        g_tau: DVec3,
-    ) -> UpdateAdj {
         let c = self.cache();
-        let (g_eps_k, mut g_mu, mut g_lambda) =
-            kirchhoff_principal_adj(p.eps_new, c.mu, c.lambda, g_tau);
-        let g_eps_new = g_sigma_new * p.sigma_new + g_eps_k;
-        let (g_eps, gm, gl, g_alpha, g_trc) =
-            dp_project_cohesive_adj(p.eps, c.mu, c.lambda, c.alpha, c.tr_c, g_eps_new, 0.0);
-        let (g_c, g_phi_trc, gm_t, gl_t) =
-            cohesion_trace_adj(self.cohesion, self.friction_deg, c.mu, c.lambda, g_trc);
-        g_mu += gm + gm_t;
-        g_lambda += gl + gl_t;
-        let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = c.d_lame;
-        UpdateAdj {
-            sigma_new: Some(p.sigma_new),
-            tau: p.tau,
-            g_sigma: hencky_adj(sigma, g_eps),
-            g_material: material_adj(&[
-                g_mu * mu_e + g_lambda * lambda_e,
-                g_mu * mu_nu + g_lambda * lambda_nu,
-                g_alpha * c.d_alpha + g_phi_trc,
-                g_c,
-            ]),
-        }
+        dp_update(sigma, c.alpha, c.cone())
     }
 }
 
@@ -158,16 +102,12 @@ impl Material for CohesiveDruckerPrager {
     }
     fn prepared(&self) -> Self {
         let mut m = self.clone();
-        let (mu, lambda) = lame(m.youngs_modulus, m.poisson_ratio);
-        let (e, nu) = (m.youngs_modulus, m.poisson_ratio);
-        m.cache = Some(Cache {
-            mu,
-            lambda,
-            alpha: dp_alpha(m.friction_deg),
-            tr_c: cohesion_trace(m.cohesion, m.friction_deg, mu, lambda),
-            d_lame: super::lame_derivatives(e, nu),
-            d_alpha: dp_alpha_adj(m.friction_deg, 1.0),
-        });
+        m.cache = Some(ConeCache::new(
+            m.youngs_modulus,
+            m.poisson_ratio,
+            m.friction_deg,
+            Some(m.cohesion),
+        ));
         m
     }
     fn density(&self) -> f64 {
@@ -212,12 +152,14 @@ impl Material for CohesiveDruckerPrager {
     /// Four particles at a time in vector registers (`return_map::lanes`), each the scalar
     /// update's result to the bit.
     fn update_many(&self, g: Group<'_>) {
-        update_many_lanes(g, self.cone(), false, |_| self.cache().alpha);
+        let c = self.cache();
+        update_many_lanes(g, c.cone(), false, |_| c.alpha);
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches.
     fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
-        self.adjoint_of(sigma, &self.project(sigma), g_sigma_new, g_tau)
+        self.cache()
+            .adjoint_of(sigma, &self.project(sigma), g_sigma_new, g_tau)
     }
 
     fn update_adj_saved(
@@ -229,15 +171,7 @@ impl Material for CohesiveDruckerPrager {
         g_tau: DVec3,
     ) -> UpdateAdj {
         let c = self.cache();
-        let [eps, eps_new, sigma_new] = *saved;
-        let p = DpUpdate {
-            eps,
-            eps_new,
-            dq: 0.0,
-            sigma_new,
-            tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
-        };
-        self.adjoint_of(sigma, &p, g_sigma_new, g_tau)
+        c.adjoint_of(sigma, &c.restore(saved), g_sigma_new, g_tau)
     }
 }
 

@@ -8,8 +8,9 @@ use super::{
 use crate::error::FieldError;
 use crate::math::return_map::lanes::{dp_update_group, LANES};
 use crate::math::return_map::{
-    dp_alpha, dp_alpha_adj, dp_project_adj, dp_update, hardened_friction_deg, hencky_adj,
-    kirchhoff_principal, kirchhoff_principal_adj, lame, Cone, DpUpdate,
+    cohesion_trace, cohesion_trace_adj, dp_alpha, dp_alpha_adj, dp_project_adj,
+    dp_project_cohesive_adj, dp_update, hardened_friction_deg, hencky_adj, kirchhoff_principal,
+    kirchhoff_principal_adj, lame, Cone, DpUpdate,
 };
 use bevy_ecs::prelude::*;
 use glam::DVec3;
@@ -35,28 +36,118 @@ pub struct DruckerPrager {
     #[serde(default)]
     pub hardening: Option<(f64, f64, f64, f64)>,
     #[serde(skip)]
-    cache: Option<Cache>,
+    cache: Option<ConeCache>,
 }
 
+/// What both Drucker–Prager materials precompute once per body (`prepared`), and the update and
+/// adjoint they share around it.
 #[derive(Clone, Debug, PartialEq)]
-struct Cache {
-    mu: f64,
-    lambda: f64,
-    alpha: f64,
+pub(super) struct ConeCache {
+    pub(super) mu: f64,
+    pub(super) lambda: f64,
+    pub(super) alpha: f64,
+    /// The apex's strain trace `c·cot φ/K` (0 without cohesion).
+    pub(super) tr_c: f64,
     /// `(∂(μ, λ)/∂E, ∂(μ, λ)/∂ν)`: the parameter gradient is linear in `(∂L/∂μ, ∂L/∂λ)`, so
     /// the per-particle adjoint applies these instead of evaluating [`lame_adj`].
     d_lame: [(f64, f64); 2],
     /// `∂α/∂φ` per degree, likewise (one sine and cosine per body, not per particle).
     d_alpha: f64,
+    /// `(c, φ)` of a cohesive cone, whose apex moves with both; `None` without cohesion.
+    cohesion: Option<(f64, f64)>,
 }
 
-impl Cache {
-    /// The cone without cohesion.
-    fn cone(&self) -> Cone {
+impl ConeCache {
+    /// The cone of `(E, ν, φ)`, with its apex at the cohesion `c` (Pa) where one is given.
+    pub(super) fn new(e: f64, nu: f64, friction_deg: f64, cohesion: Option<f64>) -> Self {
+        let (mu, lambda) = lame(e, nu);
+        Self {
+            mu,
+            lambda,
+            alpha: dp_alpha(friction_deg),
+            tr_c: cohesion.map_or(0.0, |c| cohesion_trace(c, friction_deg, mu, lambda)),
+            d_lame: super::lame_derivatives(e, nu),
+            d_alpha: dp_alpha_adj(friction_deg, 1.0),
+            cohesion: cohesion.map(|c| (c, friction_deg)),
+        }
+    }
+
+    pub(super) fn cone(&self) -> Cone {
         Cone {
             mu: self.mu,
             lambda: self.lambda,
-            tr_c: 0.0,
+            tr_c: self.tr_c,
+        }
+    }
+
+    /// The update saved as `[ε, ε′, exp ε′]`, with `τ_p` recomputed from `ε′` by the same
+    /// function as in the forward, so that its adjoint is the recomputing one's bits.
+    pub(super) fn restore(&self, saved: &Saved) -> DpUpdate {
+        let [eps, eps_new, sigma_new] = *saved;
+        DpUpdate {
+            eps,
+            eps_new,
+            dq: 0.0,
+            sigma_new,
+            tau: kirchhoff_principal(eps_new, self.mu, self.lambda),
+        }
+    }
+
+    /// The adjoint of the update `p` made at `σ` (see [`Material::update_adj`]), with the
+    /// parameter gradient in the order `E, ν, φ` (and `c` for a cohesive cone).
+    #[inline(always)]
+    pub(super) fn adjoint_of(
+        &self,
+        sigma: DVec3,
+        p: &DpUpdate,
+        g_sigma_new: DVec3,
+        g_tau: DVec3,
+    ) -> UpdateAdj {
+        let (g_eps_k, mut g_mu, mut g_lambda) =
+            kirchhoff_principal_adj(p.eps_new, self.mu, self.lambda, g_tau);
+        let g_eps_new = g_sigma_new * p.sigma_new + g_eps_k;
+        let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = self.d_lame;
+        let (g_eps, g_material) = match self.cohesion {
+            None => {
+                let (g_eps, gm, gl, g_alpha) =
+                    dp_project_adj(p.eps, self.mu, self.lambda, self.alpha, g_eps_new, 0.0);
+                g_mu += gm;
+                g_lambda += gl;
+                let g = material_adj(&[
+                    g_mu * mu_e + g_lambda * lambda_e,
+                    g_mu * mu_nu + g_lambda * lambda_nu,
+                    g_alpha * self.d_alpha,
+                ]);
+                (g_eps, g)
+            }
+            Some((c, phi)) => {
+                let (g_eps, gm, gl, g_alpha, g_trc) = dp_project_cohesive_adj(
+                    p.eps,
+                    self.mu,
+                    self.lambda,
+                    self.alpha,
+                    self.tr_c,
+                    g_eps_new,
+                    0.0,
+                );
+                let (g_c, g_phi_trc, gm_t, gl_t) =
+                    cohesion_trace_adj(c, phi, self.mu, self.lambda, g_trc);
+                g_mu += gm + gm_t;
+                g_lambda += gl + gl_t;
+                let g = material_adj(&[
+                    g_mu * mu_e + g_lambda * lambda_e,
+                    g_mu * mu_nu + g_lambda * lambda_nu,
+                    g_alpha * self.d_alpha + g_phi_trc,
+                    g_c,
+                ]);
+                (g_eps, g)
+            }
+        };
+        UpdateAdj {
+            sigma_new: Some(p.sigma_new),
+            tau: p.tau,
+            g_sigma: hencky_adj(sigma, g_eps),
+            g_material,
         }
     }
 }
@@ -119,18 +210,10 @@ impl DruckerPrager {
         }
     }
 
-    /// Precomputes μ, λ and α; called once when the body is built.
-    fn with_cache(mut self) -> Self {
-        let (mu, lambda) = lame(self.youngs_modulus, self.poisson_ratio);
-        let (e, nu) = (self.youngs_modulus, self.poisson_ratio);
-        self.cache = Some(Cache {
-            mu,
-            lambda,
-            alpha: dp_alpha(self.friction_deg),
-            d_lame: super::lame_derivatives(e, nu),
-            d_alpha: dp_alpha_adj(self.friction_deg, 1.0),
-        });
-        self
+    fn cache(&self) -> &ConeCache {
+        self.cache
+            .as_ref()
+            .expect("DruckerPrager::prepared() is called when the body is built")
     }
 }
 
@@ -157,7 +240,14 @@ impl Material for DruckerPrager {
         ][i] = value;
     }
     fn prepared(&self) -> Self {
-        self.clone().with_cache()
+        let mut m = self.clone();
+        m.cache = Some(ConeCache::new(
+            m.youngs_modulus,
+            m.poisson_ratio,
+            m.friction_deg,
+            None,
+        ));
+        m
     }
 
     fn density(&self) -> f64 {
@@ -215,16 +305,15 @@ impl Material for DruckerPrager {
     /// Four particles at a time in vector registers (`return_map::lanes`), each the scalar
     /// update's result to the bit.
     fn update_many(&self, g: Group<'_>) {
-        let c = self.cache.as_ref().expect("prepared");
-        update_many_lanes(g, c.cone(), true, |q| self.alpha_at(q));
+        update_many_lanes(g, self.cache().cone(), true, |q| self.alpha_at(q));
     }
 
     /// Exact within each return-mapping case; one-sided at the case switches (see
     /// `dp_project_adj`). With hardening the friction angle's dependence on `q` is not
     /// differentiated (the backward pass refuses such scenes).
     fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
-        let c = self.cache.as_ref().expect("prepared");
-        self.adjoint_of(
+        let c = self.cache();
+        c.adjoint_of(
             sigma,
             &dp_update(sigma, c.alpha, c.cone()),
             g_sigma_new,
@@ -242,16 +331,8 @@ impl Material for DruckerPrager {
         g_sigma_new: DVec3,
         g_tau: DVec3,
     ) -> UpdateAdj {
-        let c = self.cache.as_ref().expect("prepared");
-        let [eps, eps_new, sigma_new] = *saved;
-        let p = DpUpdate {
-            eps,
-            eps_new,
-            dq: 0.0,
-            sigma_new,
-            tau: kirchhoff_principal(eps_new, c.mu, c.lambda),
-        };
-        self.adjoint_of(sigma, &p, g_sigma_new, g_tau)
+        let c = self.cache();
+        c.adjoint_of(sigma, &c.restore(saved), g_sigma_new, g_tau)
     }
 }
 
@@ -260,7 +341,7 @@ impl DruckerPrager {
     /// hardening).
     #[inline(always)]
     fn alpha_at(&self, q: f64) -> f64 {
-        let c = self.cache.as_ref().expect("prepared");
+        let c = self.cache();
         match self.hardening {
             None => c.alpha,
             Some(h) => dp_alpha(hardened_friction_deg(h.into(), q).clamp(0.0, 89.0)),
@@ -270,41 +351,7 @@ impl DruckerPrager {
     /// The forward update at `σ` with the friction angle of hardening state `q`.
     #[inline(always)]
     fn project_at(&self, sigma: DVec3, q: f64) -> DpUpdate {
-        let c = self
-            .cache
-            .as_ref()
-            .expect("DruckerPrager::prepared() is called when the body is built");
-        dp_update(sigma, self.alpha_at(q), c.cone())
-    }
-
-    /// The adjoint of the update `p` made at `σ` (see [`Material::update_adj`]).
-    #[inline(always)]
-    fn adjoint_of(
-        &self,
-        sigma: DVec3,
-        p: &DpUpdate,
-        g_sigma_new: DVec3,
-        g_tau: DVec3,
-    ) -> UpdateAdj {
-        let c = self.cache.as_ref().expect("prepared");
-        let (g_eps_k, mut g_mu, mut g_lambda) =
-            kirchhoff_principal_adj(p.eps_new, c.mu, c.lambda, g_tau);
-        let g_eps_new = g_sigma_new * p.sigma_new + g_eps_k;
-        let (g_eps, gm, gl, g_alpha) =
-            dp_project_adj(p.eps, c.mu, c.lambda, c.alpha, g_eps_new, 0.0);
-        g_mu += gm;
-        g_lambda += gl;
-        let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = c.d_lame;
-        UpdateAdj {
-            sigma_new: Some(p.sigma_new),
-            tau: p.tau,
-            g_sigma: hencky_adj(sigma, g_eps),
-            g_material: material_adj(&[
-                g_mu * mu_e + g_lambda * lambda_e,
-                g_mu * mu_nu + g_lambda * lambda_nu,
-                g_alpha * c.d_alpha,
-            ]),
-        }
+        dp_update(sigma, self.alpha_at(q), self.cache().cone())
     }
 }
 
