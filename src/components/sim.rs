@@ -67,6 +67,25 @@ pub struct Fault {
     pub value: String,
 }
 
+impl Fault {
+    /// A particle's non-finite `value` of `field`, found by `stage` in the body `body`.
+    pub fn particle(
+        stage: &'static str,
+        field: &'static str,
+        body: &str,
+        index: usize,
+        value: impl fmt::Debug,
+    ) -> Self {
+        Self {
+            stage,
+            field,
+            owner: format!("body '{body}' particle"),
+            index,
+            value: format!("{value:?}"),
+        }
+    }
+}
+
 impl fmt::Display for Fault {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(

@@ -30,13 +30,7 @@ pub fn advect(
             watch.check(finite);
         });
         if let Some(i) = watch.first_nonfinite_vec(&x.0) {
-            health.report(Fault {
-                stage: "advect",
-                field: "x",
-                owner: format!("body '{}' particle", body.name),
-                index: i,
-                value: format!("{:?}", x.0[i]),
-            });
+            health.report(Fault::particle("advect", "x", &body.name, i, x.0[i]));
         }
     }
 }

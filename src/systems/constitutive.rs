@@ -123,13 +123,7 @@ pub fn constitutive_model<M: Material>(
         ] {
             if let Some(i) = idx {
                 let value = if field == "F" { f.0[i] } else { aff.0[i] };
-                health.report(Fault {
-                    stage: "constitutive",
-                    field,
-                    owner: format!("body '{}' particle", body.name),
-                    index: i,
-                    value: format!("{value:?}"),
-                });
+                health.report(Fault::particle("constitutive", field, &body.name, i, value));
             }
         }
     }

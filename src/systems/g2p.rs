@@ -38,13 +38,7 @@ pub fn g2p(
                 watch.check(v.iter().all(|v| v.is_finite()));
             });
         if let Some(i) = watch.first_nonfinite_vec(&v.0) {
-            health.report(Fault {
-                stage: "g2p",
-                field: "v",
-                owner: format!("body '{}' particle", body.name),
-                index: i,
-                value: format!("{:?}", v.0[i]),
-            });
+            health.report(Fault::particle("g2p", "v", &body.name, i, v.0[i]));
         }
     }
 }
