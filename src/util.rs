@@ -112,6 +112,28 @@ fn address_space_limit() -> Option<u64> {
     l.split_whitespace().nth(3)?.parse().ok()
 }
 
+/// Knuth's MMIX linear congruential generator: the fixed stream the unit and finite-difference
+/// tests draw their random cases from (one place, so that every test's cases stay the same
+/// bits). Not for the simulation or the studies, which use [`SplitMix64`].
+#[derive(Clone, Debug)]
+pub struct Lcg(pub u64);
+
+impl Lcg {
+    /// Uniform in [0, 1), with 53 bits of the state.
+    pub fn uniform(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform in [−1, 1).
+    pub fn symmetric(&mut self) -> f64 {
+        self.uniform() * 2.0 - 1.0
+    }
+}
+
 /// A small deterministic generator (SplitMix64, Steele et al. 2014): the lattice jitter and
 /// every random draw of `optimize` come from it, so a seed fixes the numbers on any machine and
 /// for any thread count.

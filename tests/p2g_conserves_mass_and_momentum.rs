@@ -13,10 +13,10 @@ mod common;
 const SUM_REL_TOL: f64 = 1e-12;
 
 fn lcg(seed: &mut u64) -> f64 {
-    *seed = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    ((*seed >> 11) as f64) / ((1u64 << 53) as f64)
+    let mut g = powderlab::util::Lcg(*seed);
+    let x = g.uniform();
+    *seed = g.0;
+    x
 }
 
 #[test]

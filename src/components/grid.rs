@@ -16,6 +16,15 @@ pub enum ContactMode {
     Separate,
 }
 
+impl ContactMode {
+    /// Every mode, in declaration order.
+    pub const ALL: [ContactMode; 3] = [
+        ContactMode::Sticky,
+        ContactMode::Slip,
+        ContactMode::Separate,
+    ];
+}
+
 /// What P2G sums at a grid node: momentum (kg·m/s) and mass (kg), side by side and aligned to
 /// 32 bytes, so that a node's four numbers are one load and one store, one AVX2 register, in the
 /// scatter and in the gathers that read them (`crate::math::simd`).

@@ -124,11 +124,7 @@ mod tests {
     /// leaves an empty node) comes out of every wall response as +0, bit for bit.
     #[test]
     fn a_resting_node_stays_at_positive_zero() {
-        for mode in [
-            ContactMode::Sticky,
-            ContactMode::Slip,
-            ContactMode::Separate,
-        ] {
+        for mode in ContactMode::ALL {
             for mu in [0.0, 0.3] {
                 for a in 0..3 {
                     for sign in [1.0, -1.0] {
@@ -148,13 +144,8 @@ mod tests {
 
     #[test]
     fn adjoint_matches_central_differences() {
-        let mut seed = 17u64;
-        let mut r = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rng = crate::util::Lcg(17);
+        let mut r = || rng.symmetric();
         let mut checked = 0;
         for _ in 0..2000 {
             let v = DVec3::new(r(), r(), r());
@@ -162,11 +153,7 @@ mod tests {
             let n = DVec3::new(r(), r(), r()).normalize();
             let mu = 0.5 * (r() + 1.0);
             let w = DVec3::new(r(), r(), r());
-            let mode = [
-                ContactMode::Sticky,
-                ContactMode::Slip,
-                ContactMode::Separate,
-            ][checked % 3];
+            let mode = ContactMode::ALL[checked % 3];
             let rel = v - vb;
             let rn = rel.dot(n);
             let vt = (rel - rn * n).length();

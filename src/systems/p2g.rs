@@ -298,13 +298,8 @@ mod tests {
         use crate::math::simd::baseline;
         let dx = 0.01;
         let n = [12, 10, 9];
-        let mut seed = 11u64;
-        let mut u = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::util::Lcg(11);
+        let mut u = || rng.uniform();
         let count = 500;
         let x: Vec<DVec3> = (0..count)
             .map(|_| DVec3::new(2.0 + 7.0 * u(), 2.0 + 5.0 * u(), 2.0 + 4.0 * u()) * dx)
@@ -349,13 +344,10 @@ mod tests {
     fn binning_is_the_stable_sort_by_slab() {
         let dx = 0.01;
         let grid = Grid::new(DVec3::ZERO, dx, [40, 6, 6]);
-        let mut seed = 7u64;
+        let mut rng = crate::util::Lcg(7);
         let x: Vec<DVec3> = (0..3 * BIN_CHUNK + 123)
             .map(|_| {
-                seed = seed
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
-                let u = (seed >> 11) as f64 / (1u64 << 53) as f64;
+                let u = rng.uniform();
                 DVec3::new((2.0 + 35.0 * u) * dx, 0.03, 0.03)
             })
             .collect();

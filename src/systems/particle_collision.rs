@@ -322,13 +322,8 @@ mod tests {
         const EPS: f64 = 1e-7;
         const TOL: f64 = 1e-6;
         const FLOOR: f64 = 1e-2;
-        let mut seed = 3u64;
-        let mut r = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
-        };
+        let mut rng = crate::util::Lcg(3);
+        let mut r = || rng.symmetric();
         let (dt, margin) = (1e-3, 1e-5);
         let (mut checked, mut in_band) = (0, 0);
         for k in 0..6000 {
@@ -341,11 +336,7 @@ mod tests {
             let phi = 1e-3 * r();
             let mu = 0.5 * (r() + 1.0);
             let w = DVec3::new(r(), r(), r());
-            let mode = [
-                ContactMode::Sticky,
-                ContactMode::Slip,
-                ContactMode::Separate,
-            ][k % 3];
+            let mode = ContactMode::ALL[k % 3];
             let v_min = vb.dot(n).max(0.0) + (margin - phi) / dt;
             let rel = v - vb;
             let rel_t = rel - rel.dot(n) * n;
@@ -530,11 +521,7 @@ mod tests {
             let n = DVec3::new(r(), r(), r()).normalize();
             let vb = DVec3::new(r(), r(), r());
             let phi = 3e-3 * r();
-            let mode = [
-                ContactMode::Sticky,
-                ContactMode::Slip,
-                ContactMode::Separate,
-            ][k % 3];
+            let mode = ContactMode::ALL[k % 3];
             if clear_of(phi, margin, dt, v, vb) {
                 skipped += 1;
                 assert_eq!(

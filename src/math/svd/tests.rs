@@ -41,11 +41,12 @@ fn check(f: DMat3) {
     }
 }
 
+/// The tests' fixed stream in [−1, 1) ([`crate::util::Lcg`]), `seed` its state.
 fn lcg(seed: &mut u64) -> f64 {
-    *seed = seed
-        .wrapping_mul(6364136223846793005)
-        .wrapping_add(1442695040888963407);
-    ((*seed >> 11) as f64) / ((1u64 << 53) as f64) * 2.0 - 1.0
+    let mut g = crate::util::Lcg(*seed);
+    let x = g.symmetric();
+    *seed = g.0;
+    x
 }
 
 #[test]
