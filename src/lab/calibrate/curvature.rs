@@ -36,6 +36,17 @@ pub const CURVATURE_STEP: f64 = 0.05;
 /// of its search range (of its value, for one searched in decades).
 pub const PINNED_SHARE: f64 = 0.02;
 
+impl Identifiability {
+    /// Whether parameter `i` is pinned down ([`PINNED_SHARE`]), as a page's table says it.
+    pub fn pinned_text(&self, i: usize) -> &'static str {
+        if self.relative[i] < PINNED_SHARE {
+            "yes"
+        } else {
+            "no"
+        }
+    }
+}
+
 /// The curvature at `u` by central second differences of the forward loss, `1 + 2k²` forward
 /// rollouts for `k` parameters (the centre, `±h` along each axis, and the four corners of
 /// each pair). `u` is first moved inside the box by a step where it is closer to a face.

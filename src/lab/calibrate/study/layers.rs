@@ -214,7 +214,7 @@ fn score(trace: &[Eval], truth: &[f64]) -> (Vec<f64>, Vec<(f64, f64)>) {
 
 /// The layered bed's section of the page, and its figure `calibration_layers.svg` in `results`.
 pub fn report(o: &LayerOutcome, budget: f64, results: &std::path::Path) -> anyhow::Result<String> {
-    use super::report::title;
+    use super::report::{method_columns, title};
     use crate::lab::calibrate::plot::{colour, curves_svg, Curve};
     use crate::lab::stats::{mean_sd as mean_std, p_text, wilcoxon_less};
     let total = BUDGET_FACTOR * budget;
@@ -233,6 +233,7 @@ pub fn report(o: &LayerOutcome, budget: f64, results: &std::path::Path) -> anyho
             .collect::<Vec<_>>()
             .join(", ")
     };
+    let (head, rule) = method_columns(&["fitted", "RMS error", "loss ÷ truth's"]);
     let mut md = format!(
         "\n## Friction angle per layer of a layered bed (`{SCENE}`, `--fit layer0.friction_deg,…,layer{}.friction_deg`)\n\n\
 The column of the first case as {LAYERS} layers of 7.5 mm, each its own material: every layer's true friction angle is drawn \
@@ -252,11 +253,8 @@ and what error is left is the observation's). Angles are listed bottom layer fir
         80 / FRAME_EVERY,
         POINT_NOISE * 1e3,
         o.backward_cost,
-        METHODS
-            .iter()
-            .map(|m| format!(" {0} fitted | {0} RMS error | {0} loss ÷ truth's |", title(m)))
-            .collect::<String>(),
-        "---|---|---|".repeat(METHODS.len())
+        head,
+        rule,
     );
     for (k, a) in by[0].iter().enumerate() {
         md.push_str(&format!(
@@ -330,11 +328,7 @@ and what error is left is the observation's). Angles are listed bottom layer fir
                 truth[i],
                 id.std_error[i],
                 id.relative[i] * 100.0,
-                if id.relative[i] < calibrate::PINNED_SHARE {
-                    "yes"
-                } else {
-                    "no"
-                }
+                id.pinned_text(i)
             ));
         }
         let smallest = id.eigenvalues.last().copied().unwrap_or(f64::NAN);

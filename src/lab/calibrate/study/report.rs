@@ -16,6 +16,16 @@ pub(super) fn title(method: &str) -> &'static str {
     }
 }
 
+/// A table's header cells and separators for `columns` of each method in [`METHODS`], each
+/// named "METHOD COLUMN": the cells after the table's leading columns.
+pub(super) fn method_columns(columns: &[&str]) -> (String, String) {
+    let head = METHODS
+        .iter()
+        .flat_map(|m| columns.iter().map(move |c| format!(" {} {c} |", title(m))))
+        .collect();
+    (head, "---|".repeat(columns.len() * METHODS.len()))
+}
+
 /// Each method's error at `budgets`, read off each run's curve (compute, error of the best
 /// rollout so far), with a one-sided Wilcoxon p that it is lower than CMA-ES's (the last method):
 /// the header, then a row per budget. `curves[m]` are method `m`'s runs, paired in order.
@@ -171,16 +181,10 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
         if by.iter().any(|v| v.is_empty()) {
             continue;
         }
+        let (head, rule) = method_columns(&["fitted", "error"]);
         md.push_str(&format!(
-            "\n## {} (`{}`, `--fit {}`)\n\n| true | start |{}\n|---|---|{}\n",
-            case.name,
-            case.scene,
-            case.param,
-            METHODS
-                .iter()
-                .map(|m| format!(" {0} fitted | {0} error |", title(m)))
-                .collect::<String>(),
-            "---|---|".repeat(METHODS.len())
+            "\n## {} (`{}`, `--fit {}`)\n\n| true | start |{head}\n|---|---|{rule}\n",
+            case.name, case.scene, case.param,
         ));
         for (k, a) in by[0].iter().enumerate() {
             md.push_str(&format!("| {} | {:.3} |", a.truth, a.start));
@@ -283,11 +287,7 @@ over the pairs that a gradient method's error is lower than CMA-ES's. The backwa
                 best.values[i],
                 id.std_error[i],
                 id.relative[i] * 100.0,
-                if id.relative[i] < calibrate::PINNED_SHARE {
-                    "yes"
-                } else {
-                    "no"
-                }
+                id.pinned_text(i)
             ));
         }
         md.push_str(&format!(
