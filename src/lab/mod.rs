@@ -23,17 +23,17 @@
 //! `tests/module_graph_has_no_cycles.rs` checks it.
 
 pub mod calibrate;
-pub mod chart;
+pub(crate) mod chart;
 pub mod demo;
 pub mod gradcheck;
-pub mod journal;
+pub(crate) mod journal;
 pub mod optim;
 pub mod plan;
 pub mod policy;
 pub mod render;
 pub mod repose;
 pub mod stats;
-pub mod streams;
+pub(crate) mod streams;
 pub mod study;
 pub mod validate;
 pub mod weigh;
