@@ -52,12 +52,12 @@ pub const STROKE_SIGMA: f64 = 0.25;
 pub const PUSH_WIDTH_CELLS: f64 = 0.5;
 
 /// A stroke's backward pass as a multiple of its forward, what a gradient rollout is charged
-/// beyond its forward in the plan's budget and compute. It was set from one printout of
-/// `tests/push_gradient.rs` (1.70; later runs of that test printed 3.8 and 4.3, a single
-/// rollout on a noisy VM), and the planning run measured 2.93 over 504 gradient rollouts: the
-/// charge is low, the planning page says by how much, and raising it changes the budget's
-/// split, so it waits for the next run of that study.
-pub const STROKE_BACKWARD_COST: f64 = 1.7;
+/// beyond its forward in the plan's budget and compute: what the planning study measured over
+/// its own rollouts, 2.93 (504 gradient rollouts, the EPYC) and 3.04 (163, the Intel VM), one
+/// thread each. It was 1.7 before, from one printout of `tests/push_gradient.rs` (a single
+/// rollout on a noisy VM, whose later runs printed 3.8 and 4.3). At 2.9 a stroke budget of 6
+/// buys one gradient rollout and two forward trials, not three.
+pub const STROKE_BACKWARD_COST: f64 = 2.9;
 
 /// What [`Push::rollout_grad`] gives.
 #[derive(Clone, Debug)]
