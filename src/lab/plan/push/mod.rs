@@ -210,11 +210,17 @@ impl Push {
         self.region().share(state.iter().flat_map(|b| b.x.iter()))
     }
 
-    /// The soft share outside the region, with logistic edges half a cell wide.
+    /// The strokes' objective: the soft share outside the region, with logistic edges half a
+    /// cell wide, plus `spill_weight` times the share off the plate.
     fn loss(&self, state: &[BodyState]) -> f64 {
         let w = 0.5 * self.scene.simulation.dx;
-        self.region()
-            .soft_outside(state.iter().flat_map(|b| b.x.iter()), w)
+        let xs = || state.iter().flat_map(|b| b.x.iter());
+        let soft = self.region().soft_outside(xs(), w);
+        if self.plan.spill_weight == 0.0 {
+            soft
+        } else {
+            soft + self.plan.spill_weight * self.region().off_share(xs())
+        }
     }
 
     /// The particles still outside the region.
