@@ -225,10 +225,6 @@ fn a_malformed_push_request_gets_a_clear_error() {
             r#"Some(Push((plate: "plate", class: PullLeft, boundary: 0.06, success_fraction: 1.2)))"#,
             "plan.success_fraction",
         ),
-        (
-            r#"Some(Push((plate: "plate", class: PushLeft, boundary: 0.06, spill_weight: -1.0)))"#,
-            "plan.spill_weight",
-        ),
     ] {
         let p = plate_with(&d, plan);
         let err = refused(&[

@@ -71,23 +71,6 @@ impl PlateRegion {
         self.faces(x).iter().all(|(a, _)| *a < 0.0) && x.y > self.centre.y - self.half.y
     }
 
-    /// Whether `x` has left the plate: past its ends (`a₂ ≥ 0`) or sides (`a₃ ≥ 0`), or below
-    /// its bottom. No stroke on the plate reaches such a grain again.
-    pub fn off_plate(&self, x: DVec3) -> bool {
-        let [_, a2, a3] = self.faces(x);
-        a2.0 >= 0.0 || a3.0 >= 0.0 || x.y <= self.centre.y - self.half.y
-    }
-
-    /// The share of `xs` off the plate ([`PlateRegion::off_plate`]).
-    pub fn off_share<'a>(&self, xs: impl Iterator<Item = &'a DVec3>) -> f64 {
-        let (mut k, mut n) = (0usize, 0usize);
-        for x in xs {
-            k += usize::from(self.off_plate(*x));
-            n += 1;
-        }
-        k as f64 / n.max(1) as f64
-    }
-
     /// The share of `xs` in the region.
     pub fn share<'a>(&self, xs: impl Iterator<Item = &'a DVec3>) -> f64 {
         let (mut k, mut n) = (0usize, 0usize);
@@ -222,33 +205,6 @@ mod tests {
         // outside; the edges' ramps count it by their distance.
         assert!(r.soft_outside([deep].iter(), w) < 0.09);
         assert!(r.soft_outside([far].iter(), w) > 0.99);
-    }
-
-    /// Off the plate: past its far end or its near end along x, past a side along z, or below
-    /// its bottom; a grain short of the region, or in it, is on the plate.
-    #[test]
-    fn off_the_plate_is_past_an_end_a_side_or_below() {
-        let r = region();
-        let on = [
-            DVec3::new(0.04, 0.021, 0.06),
-            DVec3::new(0.12, 0.021, 0.021),
-            DVec3::new(0.174, 0.0151, 0.099),
-        ];
-        let off = [
-            DVec3::new(0.024, 0.021, 0.06),
-            DVec3::new(0.176, 0.021, 0.06),
-            DVec3::new(0.1, 0.021, 0.101),
-            DVec3::new(0.1, 0.021, 0.019),
-            DVec3::new(0.1, 0.0149, 0.06),
-        ];
-        for x in on {
-            assert!(!r.off_plate(x), "{x}");
-        }
-        for x in off {
-            assert!(r.off_plate(x) && !r.inside(x), "{x}");
-        }
-        let all: Vec<DVec3> = on.iter().chain(&off).copied().collect();
-        assert!((r.off_share(all.iter()) - 5.0 / 8.0).abs() < 1e-15);
     }
 
     #[test]

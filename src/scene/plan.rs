@@ -110,12 +110,6 @@ pub struct PushPlan {
     /// A*'s heuristic. Default `Unit`.
     #[serde(default)]
     pub heuristic: Heuristic,
-    /// What the strokes' optimisers add to their objective (the soft share outside) per unit
-    /// share of the powder off the plate (past its ends or sides, or fallen): no stroke brings
-    /// such powder back, so a stroke that spills it costs the plan more than one that leaves
-    /// the same powder short of the region. Default 0 (the soft share alone).
-    #[serde(default)]
-    pub spill_weight: f64,
 }
 
 /// Where a push plan's strokes aim across the stroke.
@@ -326,13 +320,6 @@ impl PushPlan {
             if !(0.0..=1.0).contains(&v) {
                 return Err(FieldError::new(at(f), v.to_string(), "in [0, 1]"));
             }
-        }
-        if !(self.spill_weight.is_finite() && (0.0..=100.0).contains(&self.spill_weight)) {
-            return Err(FieldError::new(
-                at("spill_weight"),
-                self.spill_weight.to_string(),
-                "in [0, 100] (0: the soft share outside alone)",
-            ));
         }
         for (f, v) in [("lean_deg", self.lean_deg), ("move_cost", self.move_cost)] {
             if !(v.is_finite() && (0.0..80.0).contains(&v)) {

@@ -210,17 +210,11 @@ impl Push {
         self.region().share(state.iter().flat_map(|b| b.x.iter()))
     }
 
-    /// The strokes' objective: the soft share outside the region, with logistic edges half a
-    /// cell wide, plus `spill_weight` times the share off the plate.
+    /// The soft share outside the region, with logistic edges half a cell wide.
     fn loss(&self, state: &[BodyState]) -> f64 {
         let w = 0.5 * self.scene.simulation.dx;
-        let xs = || state.iter().flat_map(|b| b.x.iter());
-        let soft = self.region().soft_outside(xs(), w);
-        if self.plan.spill_weight == 0.0 {
-            soft
-        } else {
-            soft + self.plan.spill_weight * self.region().off_share(xs())
-        }
+        self.region()
+            .soft_outside(state.iter().flat_map(|b| b.x.iter()), w)
     }
 
     /// The particles still outside the region.
