@@ -72,6 +72,7 @@ pub fn report_or_json(
 
 /// The scene at `path` with each `--set NAME=VALUE` of `sets` applied, refused in one line if
 /// the values make it invalid.
+#[cfg(feature = "lab")]
 pub fn load_with_sets(
     path: &std::path::Path,
     sets: &[String],
