@@ -15,7 +15,7 @@ use super::{
     POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
-use crate::math::return_map::{dp_update, lame, DpUpdate};
+use crate::math::return_map::lame;
 use bevy_ecs::prelude::*;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -58,13 +58,6 @@ impl CohesiveDruckerPrager {
         self.cache
             .as_ref()
             .expect("CohesiveDruckerPrager::prepared() is called when the body is built")
-    }
-
-    /// The forward update and the intermediates its adjoint reads (one function for both).
-    #[inline(always)]
-    fn project(&self, sigma: DVec3) -> DpUpdate {
-        let c = self.cache();
-        dp_update(sigma, c.alpha, c.cone())
     }
 }
 
@@ -137,14 +130,14 @@ impl Material for CohesiveDruckerPrager {
 
     #[inline(always)]
     fn update(&self, sigma: DVec3, _q: &mut f64) -> Updated {
-        let p = self.project(sigma);
+        let p = self.cache().update(sigma);
         (Some(p.sigma_new), p.tau)
     }
 
     /// Saves `[ε, ε′, exp ε′]`.
     #[inline(always)]
     fn update_saving(&self, sigma: DVec3, _q: &mut f64, saved: &mut Saved) -> Updated {
-        let p = self.project(sigma);
+        let p = self.cache().update(sigma);
         *saved = [p.eps, p.eps_new, p.sigma_new];
         (Some(p.sigma_new), p.tau)
     }
@@ -158,8 +151,8 @@ impl Material for CohesiveDruckerPrager {
 
     /// Exact within each return-mapping case; one-sided at the case switches.
     fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
-        self.cache()
-            .adjoint_of(sigma, &self.project(sigma), g_sigma_new, g_tau)
+        let c = self.cache();
+        c.adjoint_of(sigma, &c.update(sigma), g_sigma_new, g_tau)
     }
 
     fn update_adj_saved(

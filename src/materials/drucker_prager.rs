@@ -72,6 +72,13 @@ impl ConeCache {
         }
     }
 
+    /// The forward update at `σ` with the cone's own `α`, and the intermediates its adjoint
+    /// reads.
+    #[inline(always)]
+    pub(super) fn update(&self, sigma: DVec3) -> DpUpdate {
+        dp_update(sigma, self.alpha, self.cone())
+    }
+
     pub(super) fn cone(&self) -> Cone {
         Cone {
             mu: self.mu,
@@ -106,19 +113,13 @@ impl ConeCache {
         let (g_eps_k, mut g_mu, mut g_lambda) =
             kirchhoff_principal_adj(p.eps_new, self.mu, self.lambda, g_tau);
         let g_eps_new = g_sigma_new * p.sigma_new + g_eps_k;
-        let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = self.d_lame;
-        let (g_eps, g_material) = match self.cohesion {
+        // (∂L/∂ε, ∂L/∂μ, ∂L/∂λ, ∂L/∂φ beyond α's, ∂L/∂c) of the projection and, for a
+        // cohesive cone, of its apex.
+        let (g_eps, gm, gl, g_alpha, apex) = match self.cohesion {
             None => {
                 let (g_eps, gm, gl, g_alpha) =
                     dp_project_adj(p.eps, self.mu, self.lambda, self.alpha, g_eps_new, 0.0);
-                g_mu += gm;
-                g_lambda += gl;
-                let g = material_adj(&[
-                    g_mu * mu_e + g_lambda * lambda_e,
-                    g_mu * mu_nu + g_lambda * lambda_nu,
-                    g_alpha * self.d_alpha,
-                ]);
-                (g_eps, g)
+                (g_eps, gm, gl, g_alpha, None)
             }
             Some((c, phi)) => {
                 let (g_eps, gm, gl, g_alpha, g_trc) = dp_project_cohesive_adj(
@@ -132,17 +133,20 @@ impl ConeCache {
                 );
                 let (g_c, g_phi_trc, gm_t, gl_t) =
                     cohesion_trace_adj(c, phi, self.mu, self.lambda, g_trc);
-                g_mu += gm + gm_t;
-                g_lambda += gl + gl_t;
-                let g = material_adj(&[
-                    g_mu * mu_e + g_lambda * lambda_e,
-                    g_mu * mu_nu + g_lambda * lambda_nu,
-                    g_alpha * self.d_alpha + g_phi_trc,
-                    g_c,
-                ]);
-                (g_eps, g)
+                (g_eps, gm + gm_t, gl + gl_t, g_alpha, Some((g_phi_trc, g_c)))
             }
         };
+        g_mu += gm;
+        g_lambda += gl;
+        let [(mu_e, lambda_e), (mu_nu, lambda_nu)] = self.d_lame;
+        let g_phi = g_alpha * self.d_alpha;
+        let g = [
+            g_mu * mu_e + g_lambda * lambda_e,
+            g_mu * mu_nu + g_lambda * lambda_nu,
+            apex.map_or(g_phi, |(g_phi_trc, _)| g_phi + g_phi_trc),
+            apex.map_or(0.0, |(_, g_c)| g_c),
+        ];
+        let g_material = material_adj(&g[..if apex.is_some() { 4 } else { 3 }]);
         UpdateAdj {
             sigma_new: Some(p.sigma_new),
             tau: p.tau,
