@@ -119,19 +119,38 @@ fn address_space_limit() -> Option<u64> {
 pub struct Lcg(pub u64);
 
 impl Lcg {
-    /// Uniform in [0, 1), with 53 bits of the state.
-    pub fn uniform(&mut self) -> f64 {
+    /// The next state, all 64 bits.
+    pub fn next_u64(&mut self) -> u64 {
         self.0 = self
             .0
             .wrapping_mul(6364136223846793005)
             .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        self.0
+    }
+
+    /// Uniform in [0, 1), with 53 bits of the state.
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
     }
 
     /// Uniform in [−1, 1).
     pub fn symmetric(&mut self) -> f64 {
         self.uniform() * 2.0 - 1.0
     }
+}
+
+/// [`Lcg::uniform`] of the stream whose state is `state`, advancing it (for tests that keep
+/// the state as a bare number).
+pub fn lcg_uniform(state: &mut u64) -> f64 {
+    let mut g = Lcg(*state);
+    let x = g.uniform();
+    *state = g.0;
+    x
+}
+
+/// [`Lcg::symmetric`] of the stream whose state is `state`, advancing it.
+pub fn lcg_symmetric(state: &mut u64) -> f64 {
+    lcg_uniform(state) * 2.0 - 1.0
 }
 
 /// A small deterministic generator (SplitMix64, Steele et al. 2014): the lattice jitter and

@@ -12,12 +12,7 @@ mod common;
 /// Relative round-off allowed for sums over ~10⁴ particles × 27 nodes in f64.
 const SUM_REL_TOL: f64 = 1e-12;
 
-fn lcg(seed: &mut u64) -> f64 {
-    let mut g = powderlab::util::Lcg(*seed);
-    let x = g.uniform();
-    *seed = g.0;
-    x
-}
+use powderlab::util::lcg_uniform as lcg;
 
 #[test]
 fn stencil_partition_of_unity_in_3d() {

@@ -28,13 +28,8 @@ fn close(fd: f64, ad: f64, what: &str) {
     );
 }
 
-/// The tests' fixed stream in [−1, 1) ([`crate::util::Lcg`]), `seed` its state.
-fn lcg(seed: &mut u64) -> f64 {
-    let mut g = crate::util::Lcg(*seed);
-    let x = g.symmetric();
-    *seed = g.0;
-    x
-}
+/// The tests' fixed stream in [−1, 1) ([`crate::util::Lcg`]).
+use crate::util::lcg_symmetric as lcg;
 
 #[test]
 fn lame_and_alpha_adjoints() {

@@ -49,13 +49,8 @@ fn shapes() -> Vec<Shape> {
     ]
 }
 
-/// The tests' fixed stream in [−1, 1) ([`crate::util::Lcg`]), `seed` its state.
-fn lcg(seed: &mut u64) -> f64 {
-    let mut g = crate::util::Lcg(*seed);
-    let x = g.symmetric();
-    *seed = g.0;
-    x
-}
+/// The tests' fixed stream in [−1, 1) ([`crate::util::Lcg`]).
+use crate::util::lcg_symmetric as lcg;
 
 #[test]
 fn gradient_matches_central_difference_and_is_unit() {

@@ -41,13 +41,8 @@ fn check(f: DMat3) {
     }
 }
 
-/// The tests' fixed stream in [−1, 1) ([`crate::util::Lcg`]), `seed` its state.
-fn lcg(seed: &mut u64) -> f64 {
-    let mut g = crate::util::Lcg(*seed);
-    let x = g.symmetric();
-    *seed = g.0;
-    x
-}
+/// The tests' fixed stream in [−1, 1) ([`crate::util::Lcg`]).
+use crate::util::lcg_symmetric as lcg;
 
 #[test]
 fn random_matrices() {
@@ -280,18 +275,17 @@ fn binade_samples(
     binades: std::ops::RangeInclusive<i32>,
     count: usize,
     digits: u32,
-    mut seed: u64,
+    seed: u64,
 ) -> impl Iterator<Item = f64> {
+    let mut rng = crate::util::Lcg(seed);
     binades.flat_map(move |e| {
         (0..count)
             .map(|k| {
-                seed = seed
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
+                let bits = rng.next_u64();
                 let m = if k == 0 {
                     1.0
                 } else {
-                    1.0 + (seed >> (64 - digits)) as f64 / (1u64 << digits) as f64
+                    1.0 + (bits >> (64 - digits)) as f64 / (1u64 << digits) as f64
                 };
                 let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
                 sign * m * 2f64.powi(e)
