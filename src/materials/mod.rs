@@ -15,6 +15,7 @@
 pub mod cohesive_drucker_prager;
 pub mod drucker_prager;
 pub mod elastic;
+pub mod mu_i;
 pub mod registry;
 
 pub use registry::{register, MaterialSpec};
@@ -99,6 +100,12 @@ pub trait Material:
     /// body is built. By default the material itself.
     fn prepared(&self) -> Self {
         self.clone()
+    }
+    /// Takes the substep `Δt` (s) the body runs at, once, when its body is built (after
+    /// [`Material::prepared`]): a rate-dependent material (μ(I)) derives its shear rate from
+    /// it. By default nothing.
+    fn with_substep(&mut self, dt_sub: f64) {
+        let _ = dt_sub;
     }
     /// Density (kg/m³).
     fn density(&self) -> f64;

@@ -49,6 +49,7 @@ builtin_materials! {
     super::drucker_prager::DruckerPrager,
     super::cohesive_drucker_prager::CohesiveDruckerPrager,
     super::elastic::Elastic,
+    super::mu_i::MuI,
 }
 
 /// A material behind a trait object: what the scene, the schedule and the gradient check need
@@ -65,8 +66,9 @@ pub trait DynMaterial: erased_serde::Serialize + fmt::Debug + Send + Sync + Any 
     /// A copy with parameter `i` set to `value`.
     fn with_param(&self, i: usize, value: f64) -> MaterialSpec;
     fn prepared(&self) -> MaterialSpec;
-    /// Attaches the material component to a body entity.
-    fn insert_into(&self, entity: &mut EntityWorldMut);
+    /// Attaches the material component to a body entity that runs at substep `dt_sub` (s)
+    /// ([`Material::with_substep`]).
+    fn insert_into(&self, entity: &mut EntityWorldMut, dt_sub: f64);
     /// The constitutive system for this material.
     fn constitutive_system(&self) -> ScheduleConfigs<ScheduleSystem>;
     /// The adjoint of the constitutive system for this material.
@@ -111,8 +113,10 @@ impl<M: Material> DynMaterial for M {
     fn prepared(&self) -> MaterialSpec {
         MaterialSpec::new(Material::prepared(self))
     }
-    fn insert_into(&self, entity: &mut EntityWorldMut) {
-        entity.insert(self.clone());
+    fn insert_into(&self, entity: &mut EntityWorldMut, dt_sub: f64) {
+        let mut m = self.clone();
+        m.with_substep(dt_sub);
+        entity.insert(m);
     }
     fn constitutive_system(&self) -> ScheduleConfigs<ScheduleSystem> {
         constitutive_model::<M>.into_configs()

@@ -195,7 +195,8 @@ impl Build {
             if pb.material.hardens() {
                 e.insert(Hardening(vec![0.0; np]));
             }
-            pb.material.insert_into(&mut e);
+            pb.material
+                .insert_into(&mut e, s.dt / p.stability.substeps as f64);
         }
         let substeps = p.stability.substeps;
         world.insert_resource(SimParams {

@@ -15,6 +15,7 @@ use crate::math::elementary::{exp, ln};
 use glam::DVec3;
 
 pub mod lanes;
+pub mod mu_i;
 
 /// Lower clamp on singular values before `ln`: an inverted or crushed element is treated as
 /// compressed to 1e-6 of its volume along that axis instead of producing `ln(≤0)`.
