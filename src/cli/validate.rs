@@ -10,16 +10,17 @@ use std::path::PathBuf;
 /// Check against exact solutions and published experiments.
 #[derive(clap::Args)]
 pub struct Args {
-    /// free_fall, bar, self_weight, incline, column_collapse, pile_angle, rankine, repose or
-    /// stability. Without
+    /// free_fall, bar, self_weight, incline, column_collapse, axisymmetric_collapse,
+    /// pile_angle, rankine, repose or stability. Without
     /// a case the quick set runs (free_fall, bar, self_weight, incline: about 20 s on 2 cores).
     case: Option<String>,
-    /// Every case but stability (about 18 minutes on 2 cores).
+    /// Every case but stability (about 35 minutes on 2 cores).
     #[arg(long, conflicts_with = "case")]
     all: bool,
     /// Grid cells across the collapsing column (default 20, the published check: every
     /// large-a column, and the tallest small-a one, whose band stands 1.5× as many cells
-    /// high), the pile's column (default 40, at least 10) or Rankine's cut (default 20).
+    /// high), across the axisymmetric column's radius (default 20), the pile's column (default
+    /// 40, at least 10) or Rankine's cut (default 20).
     #[arg(long)]
     cells: Option<usize>,
     #[arg(long, value_parser = super::threads_arg)]
@@ -77,7 +78,7 @@ pub fn run(a: Args) -> Result<()> {
             names.join(", "),
             duration(estimate),
             if a.case.is_none() && !a.all {
-                "; --all adds column_collapse, pile_angle, rankine and repose (about 18 minutes)"
+                "; --all adds column_collapse, axisymmetric_collapse, pile_angle, rankine and repose (about 35 minutes)"
             } else {
                 ""
             }

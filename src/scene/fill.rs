@@ -34,10 +34,12 @@ fn fill_bounds(scene: &Scene, body: &BodySpec) -> (DVec3, DVec3) {
             base,
             radius,
             height,
+            quarter,
         } => {
             let b = DVec3::from(*base);
+            let below = if *quarter { 0.0 } else { *radius };
             (
-                b - DVec3::new(*radius, 0.0, *radius),
+                b - DVec3::new(below, 0.0, below),
                 b + DVec3::new(*radius, *height, *radius),
             )
         }

@@ -145,11 +145,15 @@ pub enum Fill {
         min: (f64, f64, f64),
         max: (f64, f64, f64),
     },
-    /// Vertical cylinder standing on `base` (m).
+    /// Vertical cylinder standing on `base` (m). With `quarter`, only its quarter at
+    /// `x ≥ base.x`, `z ≥ base.z`: a run against two frictionless walls that stand for the
+    /// cylinder's planes of symmetry, at a quarter of the particles (the axisymmetric collapse).
     Cylinder {
         base: (f64, f64, f64),
         radius: f64,
         height: f64,
+        #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+        quarter: bool,
     },
     /// The cavity of a cup collider, from its floor up to `height` (m) above the floor.
     InsideContainer { container: String, height: f64 },

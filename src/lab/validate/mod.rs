@@ -6,6 +6,8 @@
 //!   (`ΔL/L₀ ≈ 1.2a` for small `a`, `≈ 1.9a^(2/3)` for large `a`), log–log slopes per band,
 //!   the arrest time in units of `T_c = √(H₀/g)`, and the scale invariance of the deposit
 //!   ([`scale_invariance`]);
+//! - `axisymmetric_collapse`: a quarter cylinder's collapse, run-out against Lube et al. 2004
+//!   (`(R∞ − R₀)/R₀ ≈ 1.24a` for `a ≲ 1.7`, `≈ 1.6a^½` above), [`axisym`];
 //! - `bar`: the fixed–free vibrating elastic bar (period and energy drift), [`bar`];
 //! - `self_weight`: the self-weight column (base stress and its convergence order), [`column`];
 //! - `incline`: a block on an incline below and above its friction angle, [`incline`];
@@ -16,6 +18,7 @@
 //!   angles, [`repose`];
 //! - `stability`: stiff and extreme cases, each stable or refused, never NaN, [`stability`].
 
+pub mod axisym;
 pub mod bar;
 pub mod collapse;
 pub mod column;

@@ -1,11 +1,11 @@
 //! Which cases `powderlab validate` runs, at which resolutions, and about how long each takes.
 //!
 //! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
-//! `--all` adds the column collapse, the pile angle, Rankine's vertical cut and the angle of
-//! repose against cohesion, about 18 minutes. The stability suite
+//! `--all` adds the planar and axisymmetric column collapses, the pile angle, Rankine's
+//! vertical cut and the angle of repose against cohesion, about 35 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
-use super::{bar, column, incline, pile, rankine, repose, Check};
+use super::{axisym, bar, column, incline, pile, rankine, repose, Check};
 use super::{
     collapse_checks, free_fall, halving_check, run_collapse, scale_invariance, small_a_band,
     Collapse, COLLAPSE_CELLS, LARGE_A, LARGE_A_SLOPE, LARGE_A_SLOPE_TOL,
@@ -20,6 +20,7 @@ pub enum Case {
     SelfWeight,
     Incline,
     ColumnCollapse,
+    AxisymmetricCollapse,
     PileAngle,
     Rankine,
     Repose,
@@ -42,12 +43,13 @@ impl Progress for Silent {
 
 impl Case {
     /// Every case but the stability suite, in the order they run.
-    pub const ALL: [Case; 8] = [
+    pub const ALL: [Case; 9] = [
         Case::FreeFall,
         Case::Bar,
         Case::SelfWeight,
         Case::Incline,
         Case::ColumnCollapse,
+        Case::AxisymmetricCollapse,
         Case::PileAngle,
         Case::Rankine,
         Case::Repose,
@@ -62,6 +64,7 @@ impl Case {
             Case::SelfWeight => "self_weight",
             Case::Incline => "incline",
             Case::ColumnCollapse => "column_collapse",
+            Case::AxisymmetricCollapse => "axisymmetric_collapse",
             Case::PileAngle => "pile_angle",
             Case::Rankine => "rankine",
             Case::Repose => "repose",
@@ -83,6 +86,9 @@ impl Case {
             Case::SelfWeight => (4.7, None),
             Case::Incline => (7.2, None),
             Case::ColumnCollapse => (740.0, Some(COLLAPSE_CELLS)),
+            // Measured on the Intel VM beside a background study: 14 min before the a = 0.5
+            // column at 40 cells was added (about 2 min more).
+            Case::AxisymmetricCollapse => (960.0, Some(axisym::AXISYM_CELLS)),
             Case::PileAngle => (29.0, Some(pile::PILE_CELLS)),
             Case::Rankine => (120.0, Some(rankine::RANKINE_CELLS)),
             Case::Repose => (150.0, None),
@@ -153,6 +159,31 @@ pub fn run(
             let fine = collapse(1.0, 2 * cells)?;
             checks.push(halving_check(&at_one, &fine, cells));
             checks.push(scale_invariance(1.0, cells, threads)?);
+        }
+        Case::AxisymmetricCollapse => {
+            let cells = cells.unwrap_or(axisym::AXISYM_CELLS);
+            if cells < 4 {
+                bail!(
+                    "--cells {cells} is too coarse: use at least 4 ({} for the published check)",
+                    axisym::AXISYM_CELLS
+                );
+            }
+            let mut collapse = |a: f64, cells: usize| {
+                progress.start(format!("axisymmetric collapse a = {a}, {cells} cells"));
+                axisym::run_axisym(&axisym::Axisym::new(a, cells), threads, |f| {
+                    progress.advance(f)
+                })
+            };
+            let mut rs = Vec::new();
+            for a in axisym::AXISYM_A {
+                rs.push(collapse(a, cells)?);
+            }
+            // a = 0.5 as high in cells as a = 1 (twice the cells across R0), for the slope.
+            let half = collapse(0.5, 2 * cells)?;
+            let at_one = rs.iter().find(|r| r.aspect == 1.0).cloned();
+            let equal_height: Vec<_> = std::iter::once(half).chain(at_one).collect();
+            let fine = collapse(1.0, 2 * cells)?;
+            checks.extend(axisym::axisym_checks(&rs, &equal_height, Some(&fine)));
         }
         Case::PileAngle => {
             use pile::{run_pile, Pile, MIN_PILE_CELLS, PILE_CELLS, PILE_FRICTION_DEG};
