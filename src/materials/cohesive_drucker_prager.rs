@@ -211,13 +211,7 @@ mod tests {
 
     #[test]
     fn update_adjoint_matches_central_differences_with_cohesion() {
-        let w_s = DVec3::new(0.3, -0.8, 0.5);
-        let w_t = DVec3::new(1e-5, 2e-5, -1.5e-5);
-        let loss = |m: &CohesiveDruckerPrager, s: DVec3| {
-            let m = m.prepared();
-            let (sn, t) = m.update(s, &mut 0.0);
-            sn.unwrap().dot(w_s) + t.dot(w_t)
-        };
+        use crate::materials::fd::{check_update_adjoint, W_SIGMA, W_TAU};
         // On the cone, elastic inside it, and past the apex (in tension beyond c·cot φ).
         let mut cases = std::collections::HashSet::new();
         for sigma in [
@@ -225,51 +219,28 @@ mod tests {
             DVec3::new(0.999, 0.9985, 0.999),
             DVec3::new(1.05, 1.04, 1.06),
         ] {
-            let m = CohesiveDruckerPrager::new(1e5, 0.3, 30.0, 300.0).prepared();
+            let base = CohesiveDruckerPrager::new(1e5, 0.3, 30.0, 300.0);
+            let m = base.prepared();
             let c = m.cache();
             cases.insert(format!(
                 "{:?}",
                 dp_project_cohesive(hencky(sigma), c.mu, c.lambda, c.alpha, c.tr_c).2
             ));
-            let out = m.update_adj(sigma, 0.0, w_s, w_t);
-            let (sn, tau) = m.update(sigma, &mut 0.0);
-            assert_eq!((out.sigma_new, out.tau), (sn, tau));
+            let out = check_update_adjoint(
+                &base,
+                &|m: &CohesiveDruckerPrager| m.prepared(),
+                sigma,
+                ADJ_REL_TOL,
+                ROUND_OFF_FLOOR,
+            );
             let mut saved = [DVec3::ZERO; 3];
             m.update_saving(sigma, &mut 0.0, &mut saved);
             assert_eq!(
-                bits(&m.update_adj_saved(sigma, 0.0, &saved, w_s, w_t)),
+                bits(&m.update_adj_saved(sigma, 0.0, &saved, W_SIGMA, W_TAU)),
                 bits(&out)
             );
-            let close = |fd: f64, ad: f64, what: &str| {
-                assert!(
-                    (fd - ad).abs() <= (ADJ_REL_TOL * fd.abs().max(ad.abs())).max(ROUND_OFF_FLOOR),
-                    "σ {sigma:?} {what}: fd {fd} ad {ad}"
-                );
-            };
-            let h = 1e-7;
-            for a in 0..3 {
-                let mut e = DVec3::ZERO;
-                e[a] = h;
-                close(
-                    (loss(&m, sigma + e) - loss(&m, sigma - e)) / (2.0 * h),
-                    out.g_sigma[a],
-                    "σ",
-                );
-            }
-            for (i, p) in CohesiveDruckerPrager::PARAMS.iter().enumerate() {
-                let step = p.fd_step.at(m.param(i));
-                let at = |d: f64| {
-                    let mut x = m.clone();
-                    x.set_param(i, m.param(i) + d);
-                    loss(&x, sigma)
-                };
-                close(
-                    (at(step) - at(-step)) / (2.0 * step),
-                    out.g_material.0[i],
-                    p.name,
-                );
-            }
         }
+        assert_eq!(cases.len(), 3, "every case exercised: {cases:?}");
     }
 
     #[test]

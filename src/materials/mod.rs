@@ -248,3 +248,68 @@ pub fn material_adj(values: &[f64]) -> MaterialAdj {
     m.0[..values.len()].copy_from_slice(values);
     m
 }
+
+/// The central-difference check the materials' tests share.
+#[cfg(test)]
+pub(crate) mod fd {
+    use super::{Material, UpdateAdj};
+    use glam::DVec3;
+
+    /// Weights of the check's loss `w_σ·σ′ + w_τ·τ_p`: O(1) on the stretches, and on the
+    /// stresses the inverse of the tests' E = 1e5 Pa, so both terms are of order one.
+    pub const W_SIGMA: DVec3 = DVec3::new(0.3, -0.8, 0.5);
+    pub const W_TAU: DVec3 = DVec3::new(1e-5, 2e-5, -1.5e-5);
+    /// Step of the difference in σ.
+    pub const SIGMA_STEP: f64 = 1e-7;
+
+    /// Checks `update_adj` of `base` (made ready by `ready`: `prepared`, and the substep for a
+    /// rate-dependent material) at `sigma` against central differences in σ and in every
+    /// parameter of [`Material::PARAMS`] at its own step: each within `rel_tol` of the larger
+    /// of the two, or `floor` where both are round-off. Also checks that the update it returns is
+    /// the forward's. Returns the adjoint.
+    pub fn check_update_adjoint<M: Material>(
+        base: &M,
+        ready: &dyn Fn(&M) -> M,
+        sigma: DVec3,
+        rel_tol: f64,
+        floor: f64,
+    ) -> UpdateAdj {
+        let loss = |m: &M, s: DVec3| {
+            let (sn, t) = ready(m).update(s, &mut 0.0);
+            sn.unwrap_or(s).dot(W_SIGMA) + t.dot(W_TAU)
+        };
+        let m = ready(base);
+        let out = m.update_adj(sigma, 0.0, W_SIGMA, W_TAU);
+        assert_eq!((out.sigma_new, out.tau), m.update(sigma, &mut 0.0));
+        let close = |fd: f64, ad: f64, what: &str| {
+            assert!(
+                (fd - ad).abs() <= (rel_tol * fd.abs().max(ad.abs())).max(floor),
+                "σ {sigma:?} {what}: fd {fd} ad {ad}"
+            );
+        };
+        let h = SIGMA_STEP;
+        for a in 0..3 {
+            let mut e = DVec3::ZERO;
+            e[a] = h;
+            close(
+                (loss(base, sigma + e) - loss(base, sigma - e)) / (2.0 * h),
+                out.g_sigma[a],
+                "σ",
+            );
+        }
+        for (i, p) in M::PARAMS.iter().enumerate() {
+            let step = p.fd_step.at(base.param(i));
+            let at = |d: f64| {
+                let mut x = base.clone();
+                x.set_param(i, base.param(i) + d);
+                loss(&x, sigma)
+            };
+            close(
+                (at(step) - at(-step)) / (2.0 * step),
+                out.g_material.0[i],
+                p.name,
+            );
+        }
+        out
+    }
+}

@@ -26,6 +26,7 @@ pub mod incline;
 pub mod pile;
 pub mod rankine;
 pub mod repose;
+pub mod rheology;
 pub mod stability;
 pub mod suite;
 
@@ -212,6 +213,7 @@ pub fn free_fall(threads: Option<usize>) -> anyhow::Result<Vec<Check>> {
 }
 
 pub use collapse::*;
+pub use rheology::Rheology;
 
 #[cfg(test)]
 mod tests;
