@@ -82,55 +82,27 @@ fn cohesion_is_a_named_parameter_of_the_scene() {
 
 #[test]
 fn the_gradient_in_every_material_parameter_agrees_with_central_differences() {
-    use powderlab::adjoint::tape::{gradient, Loss, Tape};
-    use powderlab::materials::cohesive_drucker_prager::CohesiveDruckerPrager;
     // 60 Pa holds 2.8 cm (Rankine), so the 4 cm block's upper part fails: the return mapping
     // runs on the cone and at the apex, not only inside it.
-    let scene = block(60.0);
-    let target = glam::DVec3::new(0.06, 0.0, 0.06);
-    let steps = 8;
-    let loss = |s: &Scene| {
-        let mut sim = common::build(s, 2);
-        sim.run(steps, |_| {}).unwrap();
-        let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
-        Loss::SumDistance(target).eval(&xs).0
-    };
-    let mut sim = common::build(&scene, 2);
-    let g = gradient(
-        &mut sim,
-        steps,
-        &Loss::SumDistance(target),
-        Tape::Budget(1 << 30),
-    )
-    .unwrap();
     // E's step is 1e-4 of it: at 1e-6 (0.1 Pa) the differences scatter by a few parts per
     // million between steps (9.76521e-6 at 0.1 Pa, 9.76531e-6 at 0.01 Pa, 9.76624e-6 at
     // 0.005 Pa: grains switching between the cone and the apex within the step), more than
     // their own error estimate says; at 10 and 5 Pa they agree with each other and bracket the
     // adjoint's 9.76528e-6.
-    for (name, h) in [
-        ("youngs_modulus", 1e1),
-        ("poisson_ratio", 1e-6),
-        ("friction_deg", 1e-6),
-        ("cohesion", 1e-3),
-    ] {
-        let with = |d: f64| {
-            let mut s = scene.clone();
-            let m = s
-                .materials
-                .get_mut("powder")
-                .and_then(|m| m.get_mut::<CohesiveDruckerPrager>())
-                .unwrap();
-            match name {
-                "youngs_modulus" => m.youngs_modulus += d,
-                "poisson_ratio" => m.poisson_ratio += d,
-                "friction_deg" => m.friction_deg += d,
-                _ => m.cohesion += d,
-            }
-            loss(&s)
-        };
-        common::check_fd(with, h, g.material_gradient(0, name).unwrap(), name);
-    }
+    common::check_material_gradients::<
+        powderlab::materials::cohesive_drucker_prager::CohesiveDruckerPrager,
+    >(
+        &block(60.0),
+        "powder",
+        8,
+        glam::DVec3::new(0.06, 0.0, 0.06),
+        &[
+            ("youngs_modulus", 1e1),
+            ("poisson_ratio", 1e-6),
+            ("friction_deg", 1e-6),
+            ("cohesion", 1e-3),
+        ],
+    );
 }
 
 /// Rankine's vertical cut (`validate rankine`'s case) on a coarse slab: a column of height H

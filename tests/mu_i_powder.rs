@@ -6,7 +6,6 @@
 #![cfg(feature = "lab")]
 
 use powderlab::lab::validate::{run_collapse, Collapse, Rheology};
-use powderlab::scene::Scene;
 
 mod common;
 
@@ -38,52 +37,23 @@ fn block_text(mu_s: f64, grain_mm: f64) -> String {
 
 #[test]
 fn the_gradient_in_every_material_parameter_agrees_with_central_differences() {
-    use powderlab::adjoint::tape::{gradient, Loss, Tape};
-    use powderlab::materials::mu_i::MuI;
     // A cube slumps: its grains flow on the rate-dependent surface, and some stay inside it.
     let scene = common::parse(&block_text(0.38, 2.0)).unwrap();
-    let target = glam::DVec3::new(0.06, 0.0, 0.06);
-    let steps = 8;
-    let loss = |s: &Scene| {
-        let mut sim = common::build(s, 2);
-        sim.run(steps, |_| {}).unwrap();
-        let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
-        Loss::SumDistance(target).eval(&xs).0
-    };
-    let mut sim = common::build(&scene, 2);
-    let g = gradient(
-        &mut sim,
-        steps,
-        &Loss::SumDistance(target),
-        Tape::Budget(1 << 30),
-    )
-    .unwrap();
     // E's step is 1e-5 of it: at 1e-4 and 1e-3 (10 and 100 Pa) grains switch between flow and
     // rest within the step and the differences move by 2e-5 and 8e-4 of the gradient (2.77660e-6
     // and 2.77879e-6 against the adjoint's 2.776658e-6); at 1 Pa they agree with it to 3e-8.
-    for (name, h) in [
-        ("youngs_modulus", 1e0),
-        ("poisson_ratio", 1e-6),
-        ("mu_s", 1e-6),
-        ("mu_2", 1e-6),
-    ] {
-        let with = |d: f64| {
-            let mut s = scene.clone();
-            let m = s
-                .materials
-                .get_mut("powder")
-                .and_then(|m| m.get_mut::<MuI>())
-                .unwrap();
-            match name {
-                "youngs_modulus" => m.youngs_modulus += d,
-                "poisson_ratio" => m.poisson_ratio += d,
-                "mu_s" => m.mu_s += d,
-                _ => m.mu_2 += d,
-            }
-            loss(&s)
-        };
-        common::check_fd(with, h, g.material_gradient(0, name).unwrap(), name);
-    }
+    common::check_material_gradients::<powderlab::materials::mu_i::MuI>(
+        &scene,
+        "powder",
+        8,
+        glam::DVec3::new(0.06, 0.0, 0.06),
+        &[
+            ("youngs_modulus", 1e0),
+            ("poisson_ratio", 1e-6),
+            ("mu_s", 1e-6),
+            ("mu_2", 1e-6),
+        ],
+    );
 }
 
 /// A planar collapse (a = 1, 8 cells across L₀): with grains of 1 µm the inertial number stays

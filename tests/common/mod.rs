@@ -163,3 +163,48 @@ pub fn coarse_weighing(noise_mg: f64) -> Scene {
     s.validate().unwrap();
     s
 }
+
+/// The end-to-end check of a material's parameter gradients: the adjoint of
+/// `SumDistance(target)` after `steps` steps of `scene` against [`check_fd`] in each named
+/// parameter of the material `material` (of type `M`) at its step `h`.
+#[allow(dead_code)]
+pub fn check_material_gradients<M: powderlab::materials::Material>(
+    scene: &Scene,
+    material: &str,
+    steps: usize,
+    target: glam::DVec3,
+    params: &[(&str, f64)],
+) {
+    use powderlab::adjoint::tape::{gradient, Loss, Tape};
+    let loss = |s: &Scene| {
+        let mut sim = build(s, 2);
+        sim.run(steps, |_| {}).unwrap();
+        let xs: Vec<_> = sim.body_states().into_iter().map(|b| b.x).collect();
+        Loss::SumDistance(target).eval(&xs).0
+    };
+    let mut sim = build(scene, 2);
+    let g = gradient(
+        &mut sim,
+        steps,
+        &Loss::SumDistance(target),
+        Tape::Budget(1 << 30),
+    )
+    .unwrap();
+    for &(name, h) in params {
+        let i = M::PARAMS
+            .iter()
+            .position(|p| p.name == name)
+            .unwrap_or_else(|| panic!("{} has no parameter {name}", M::NAME));
+        let with = |d: f64| {
+            let mut s = scene.clone();
+            let m = s
+                .materials
+                .get_mut(material)
+                .and_then(|m| m.get_mut::<M>())
+                .unwrap();
+            m.set_param(i, m.param(i) + d);
+            loss(&s)
+        };
+        check_fd(with, h, g.material_gradient(0, name).unwrap(), name);
+    }
+}

@@ -4,7 +4,8 @@
 //! run, against two frictionless walls that stand for its planes of symmetry
 //! (`Fill::Cylinder { quarter: true }`). See `docs/results/validation.md` for what passes and why.
 
-use super::{build, front_arrest, loglog_slope, read_body, Check, COLLAPSE_WALL_CELLS};
+use super::collapse::run_to_arrest;
+use super::{build, front_arrest, loglog_slope, Check, COLLAPSE_WALL_CELLS};
 use glam::DVec3;
 use serde::Serialize;
 
@@ -175,41 +176,27 @@ pub fn run_axisym(
     )?;
     let dx = scene.simulation.dx;
     let axis = c.axis();
-    let y_floor = COLLAPSE_WALL_CELLS as f64 * dx;
     let tc = (c.aspect * c.radius / 9.81).sqrt();
-    let dt = scene.simulation.dt;
-    let pe0: f64 = sim.body_states()[0]
-        .x
-        .iter()
-        .map(|x| 9.81 * (x.y - y_floor))
-        .sum();
-    let max_steps = (6.0 * tc / dt).ceil() as usize;
-    let mut fronts = Vec::with_capacity(max_steps);
     let mut rs = Vec::new();
-    let mut arrest = None;
-    for k in 1..=max_steps {
-        sim.step()?;
-        let ke: f64 = read_body(&mut sim, |x, v| {
+    let run = run_to_arrest(
+        &mut sim,
+        tc,
+        COLLAPSE_WALL_CELLS as f64 * dx,
+        |x| {
             rs.clear();
             rs.extend(x.iter().map(|x| (x.x - axis).hypot(x.z - axis)));
-            v.iter().map(|v| 0.5 * v.length_squared()).sum()
-        });
-        let t = k as f64 * dt;
-        fronts.push((t, radial_front_cells(&rs, dx, c.particles_per_cell)));
-        progress(t / (6.0 * tc));
-        if t > tc && ke < 1e-6 * pe0 {
-            arrest = Some(t / tc);
-            break;
-        }
-    }
-    let front = fronts.last().map_or(0, |f| f.1) as f64 * dx;
+            radial_front_cells(&rs, dx, c.particles_per_cell)
+        },
+        &mut progress,
+    )?;
+    let front = run.fronts.last().map_or(0, |f| f.1) as f64 * dx;
     Ok(AxisymResult {
         aspect: c.aspect,
         cells_across: c.cells_across,
         runout_ratio: (front - c.radius) / c.radius,
-        arrest_tc: arrest,
-        front_arrest_tc: front_arrest(&fronts, 1).map(|t| t / tc),
-        particles: rs.len(),
+        arrest_tc: run.arrest_tc,
+        front_arrest_tc: front_arrest(&run.fronts, 1).map(|t| t / tc),
+        particles: run.particles,
         substeps: sim.clock().total_substeps,
         wall_s: start.elapsed().as_secs_f64(),
     })

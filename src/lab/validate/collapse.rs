@@ -229,35 +229,21 @@ pub fn run_collapse(
     )?;
     let dx = scene.simulation.dx;
     let x_wall = COLLAPSE_WALL_CELLS as f64 * dx;
-    let y_floor = x_wall;
-    let h0 = c.aspect * c.length;
-    let tc = (h0 / 9.81).sqrt();
-    let dt = scene.simulation.dt;
-    let pe0: f64 = sim.body_states()[0]
-        .x
-        .iter()
-        .map(|x| 9.81 * (x.y - y_floor))
-        .sum();
-    let mut arrest = None;
-    let max_steps = (6.0 * tc / dt).ceil() as usize;
+    let tc = (c.aspect * c.length / 9.81).sqrt();
     let min_count = front_min_count(c.particles_per_cell);
-    let mut fronts = Vec::with_capacity(max_steps);
     let mut xs = Vec::new();
-    for k in 1..=max_steps {
-        sim.step()?;
-        let ke: f64 = read_body(&mut sim, |x, v| {
+    let run = run_to_arrest(
+        &mut sim,
+        tc,
+        x_wall,
+        |x| {
             xs.clear();
             xs.extend(x.iter().map(|x| x.x - x_wall));
-            v.iter().map(|v| 0.5 * v.length_squared()).sum()
-        });
-        let t = k as f64 * dt;
-        fronts.push((t, deposit_front_cells(&xs, dx, min_count)));
-        progress(t / (6.0 * tc));
-        if t > tc && ke < 1e-6 * pe0 {
-            arrest = Some(t / tc);
-            break;
-        }
-    }
+            deposit_front_cells(&xs, dx, min_count)
+        },
+        &mut progress,
+    )?;
+    let (fronts, arrest) = (run.fronts, run.arrest_tc);
     // The last step's front is the deposit's (the loop runs at least one step).
     let front = fronts.last().map_or(0, |f| f.1) as f64 * dx;
     let st = sim.body_states();
@@ -267,13 +253,68 @@ pub fn run_collapse(
         runout_ratio: (front - c.length) / c.length,
         arrest_tc: arrest,
         front_arrest_tc: front_arrest(&fronts, 1).map(|t| t / tc),
-        particles: xs.len(),
+        particles: run.particles,
         substeps: sim.clock().total_substeps,
         substeps_per_step: sim.params().substeps,
         wall_s: start.elapsed().as_secs_f64(),
         deposit: normalised_deposit(&st[0].x, dx, c.length),
         front_trace: fronts,
     })
+}
+
+/// What [`run_to_arrest`] measured.
+pub(crate) struct Arrest {
+    /// `(t, front in cells)` after every step.
+    pub fronts: Vec<(f64, usize)>,
+    /// When the kinetic energy fell below 1e-6 of the initial potential energy, over `T_c`;
+    /// `None` if it never did within 6 T_c.
+    pub arrest_tc: Option<f64>,
+    /// The first body's particles.
+    pub particles: usize,
+}
+
+/// Steps a collapse until, after `T_c = tc`, the first body's kinetic energy falls below 1e-6
+/// of its initial potential energy above the floor at `y_floor` (granular.md's condition for
+/// reading the run-out), or to 6 T_c; `front(x)` measures the front in cells from the positions
+/// after each step. The planar and the axisymmetric collapse differ only in `front`.
+pub(crate) fn run_to_arrest(
+    sim: &mut crate::sim::Simulation,
+    tc: f64,
+    y_floor: f64,
+    mut front: impl FnMut(&[DVec3]) -> usize,
+    progress: &mut dyn FnMut(f64),
+) -> anyhow::Result<Arrest> {
+    let dt = sim.params().dt;
+    let pe0: f64 = sim.body_states()[0]
+        .x
+        .iter()
+        .map(|x| 9.81 * (x.y - y_floor))
+        .sum();
+    let max_steps = (6.0 * tc / dt).ceil() as usize;
+    let mut out = Arrest {
+        fronts: Vec::with_capacity(max_steps),
+        arrest_tc: None,
+        particles: 0,
+    };
+    for k in 1..=max_steps {
+        sim.step()?;
+        let (ke, f, n): (f64, usize, usize) = read_body(sim, |x, v| {
+            (
+                v.iter().map(|v| 0.5 * v.length_squared()).sum(),
+                front(x),
+                x.len(),
+            )
+        });
+        let t = k as f64 * dt;
+        out.fronts.push((t, f));
+        out.particles = n;
+        progress(t / (6.0 * tc));
+        if t > tc && ke < 1e-6 * pe0 {
+            out.arrest_tc = Some(t / tc);
+            break;
+        }
+    }
+    Ok(out)
 }
 
 /// The arrest time of a front trace `(t, front in cells)`: the first time after which the front
