@@ -13,7 +13,7 @@ use super::{
     MAX_DENSITY, POISSON_RATIO, YOUNGS_MODULUS,
 };
 use crate::error::FieldError;
-use crate::math::return_map::mu_i::{mu_i_project, mu_i_project_adj, MuIConsts};
+use crate::math::return_map::mu_i::{classify, mu_i_project_adj, project_classified, MuIConsts};
 use crate::math::return_map::{
     hencky, hencky_adj, kirchhoff_principal, kirchhoff_principal_adj, lame, stretch,
 };
@@ -75,9 +75,19 @@ fn default_grain_density() -> f64 {
 struct MuICache {
     consts: MuIConsts,
     d_lame: [(f64, f64); 2],
-    /// Whether `consts.rate` holds the substep's rate yet.
-    has_rate: bool,
 }
+
+/// What [`MuI::forward`] returns.
+type Forward = (
+    DVec3,
+    (
+        crate::math::return_map::mu_i::MuICase,
+        Option<crate::math::return_map::mu_i::Flow>,
+    ),
+    DVec3,
+    DVec3,
+    DVec3,
+);
 
 impl MuI {
     pub fn new(youngs_modulus: f64, poisson_ratio: f64, mu_s: f64, mu_2: f64) -> Self {
@@ -99,21 +109,25 @@ impl MuI {
             .cache
             .as_ref()
             .expect("MuI::prepared() is called when the body is built");
+        // The rate d·√ρ_s/Δt is positive once set (the parameters are validated positive).
         assert!(
-            c.has_rate,
+            c.consts.rate > 0.0,
             "MuI::with_substep() is called when the body is built"
         );
         &c.consts
     }
 
-    /// The forward update and its intermediates: `(ε, ε′, exp ε′, τ_p)`.
+    /// The forward update and what its adjoint reads: `(ε, the return's case and
+    /// intermediates, ε′, exp ε′, τ_p)`.
     #[inline(always)]
-    fn forward(&self, sigma: DVec3) -> (DVec3, DVec3, DVec3, DVec3) {
+    fn forward(&self, sigma: DVec3) -> Forward {
         let c = self.consts();
         let eps = hencky(sigma);
-        let (eps_new, _, _) = mu_i_project(eps, c);
+        let classified = classify(eps, c);
+        let (eps_new, _, _) = project_classified(eps, classified);
         (
             eps,
+            classified,
             eps_new,
             stretch(eps_new),
             kirchhoff_principal(eps_new, c.mu, c.lambda),
@@ -166,7 +180,6 @@ impl Material for MuI {
                 rate: 0.0,
             },
             d_lame: super::lame_derivatives(m.youngs_modulus, m.poisson_ratio),
-            has_rate: false,
         });
         m
     }
@@ -177,7 +190,6 @@ impl Material for MuI {
             .as_mut()
             .expect("MuI::prepared() runs before with_substep()");
         c.consts.rate = d * rho_s.sqrt() / dt_sub;
-        c.has_rate = true;
     }
     fn density(&self) -> f64 {
         self.density
@@ -221,17 +233,17 @@ impl Material for MuI {
 
     #[inline(always)]
     fn update(&self, sigma: DVec3, _q: &mut f64) -> Updated {
-        let (_, _, sigma_new, tau) = self.forward(sigma);
+        let (_, _, _, sigma_new, tau) = self.forward(sigma);
         (Some(sigma_new), tau)
     }
 
     /// Exact within each case of the return; one-sided at the case switches.
     fn update_adj(&self, sigma: DVec3, _q: f64, g_sigma_new: DVec3, g_tau: DVec3) -> UpdateAdj {
         let c = self.consts();
-        let (eps, eps_new, sigma_new, tau) = self.forward(sigma);
+        let (eps, classified, eps_new, sigma_new, tau) = self.forward(sigma);
         let (g_eps_k, g_mu_k, g_lambda_k) = kirchhoff_principal_adj(eps_new, c.mu, c.lambda, g_tau);
         let g_eps_new = g_sigma_new * sigma_new + g_eps_k;
-        let adj = mu_i_project_adj(eps, c, g_eps_new);
+        let adj = mu_i_project_adj(eps, c, classified, g_eps_new);
         let (g_mu, g_lambda) = (g_mu_k + adj.g_mu, g_lambda_k + adj.g_lambda);
         let d = &self.cache.as_ref().expect("prepared").d_lame;
         UpdateAdj {
@@ -280,7 +292,7 @@ mod tests {
         ] {
             cases.insert(format!(
                 "{:?}",
-                mu_i_project(hencky(sigma), beads(&base).consts()).2
+                classify(hencky(sigma), beads(&base).consts()).0
             ));
             crate::materials::fd::check_update_adjoint(
                 &base,

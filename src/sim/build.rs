@@ -157,6 +157,9 @@ impl Build {
                 });
             }
         }
+        // The substep every body and the schedule run at, fixed when the world is built.
+        let substeps = p.stability.substeps;
+        let dt_sub = s.dt / substeps as f64;
         for (i, (b, pb)) in scene.bodies.iter().zip(p.bodies.iter()).enumerate() {
             let np = pb.x.len();
             let mut e = world.spawn((
@@ -198,11 +201,10 @@ impl Build {
             pb.material
                 .insert_into(&mut e, s.dt / p.stability.substeps as f64);
         }
-        let substeps = p.stability.substeps;
         world.insert_resource(SimParams {
             dt: s.dt,
             substeps,
-            dt_sub: s.dt / substeps as f64,
+            dt_sub,
             gravity: DVec3::from(s.gravity),
             empty_node_mass: if p.min_particle_mass.is_finite() {
                 s.empty_node_ratio * p.min_particle_mass

@@ -52,7 +52,7 @@ pub enum MuICase {
 
 /// The intermediates of a flowing return that its adjoint reads.
 #[derive(Clone, Copy, Debug)]
-struct Flow {
+pub struct Flow {
     dev: DVec3,
     dn: f64,
     p: f64,
@@ -76,8 +76,10 @@ fn shear_increment(a: f64, k: f64, p: f64, c: &MuIConsts) -> f64 {
     }
 }
 
+/// The return's case and, when flowing, the intermediates [`mu_i_project_adj`] reads: the
+/// forward computes them once and hands them to the adjoint.
 #[inline(always)]
-fn classify(eps: DVec3, c: &MuIConsts) -> (MuICase, Option<Flow>) {
+pub fn classify(eps: DVec3, c: &MuIConsts) -> (MuICase, Option<Flow>) {
     let tr = eps.x + eps.y + eps.z;
     if tr >= 0.0 {
         return (MuICase::Separated, None);
@@ -108,7 +110,16 @@ fn classify(eps: DVec3, c: &MuIConsts) -> (MuICase, Option<Flow>) {
 /// the substep (0 unless flowing) and the case.
 #[inline(always)]
 pub fn mu_i_project(eps: DVec3, c: &MuIConsts) -> (DVec3, f64, MuICase) {
-    match classify(eps, c) {
+    project_classified(eps, classify(eps, c))
+}
+
+/// [`mu_i_project`] from the return's [`classify`].
+#[inline(always)]
+pub fn project_classified(
+    eps: DVec3,
+    classified: (MuICase, Option<Flow>),
+) -> (DVec3, f64, MuICase) {
+    match classified {
         (MuICase::Flow, Some(f)) => {
             let scale = f.dgamma / std::f64::consts::SQRT_2 / f.dn;
             (eps - f.dev * scale, f.dgamma, MuICase::Flow)
@@ -133,7 +144,13 @@ pub struct MuIAdj {
 /// `Δγ` is differentiated through its defining relation `R = (A − μΔγ)(I₀ + kΔγ) − p·Δμ·kΔγ = 0`
 /// (`dΔγ = −dR/(∂R/∂Δγ)`, with `∂R/∂Δγ ≤ −μ·I₀ < 0`), which needs no derivative of the root's
 /// closed form.
-pub fn mu_i_project_adj(eps: DVec3, c: &MuIConsts, g_new: DVec3) -> MuIAdj {
+/// `classified` is [`classify`] at `eps`, as the forward computed it.
+pub fn mu_i_project_adj(
+    eps: DVec3,
+    c: &MuIConsts,
+    classified: (MuICase, Option<Flow>),
+    g_new: DVec3,
+) -> MuIAdj {
     let zero = MuIAdj {
         g_eps: DVec3::ZERO,
         g_mu: 0.0,
@@ -141,7 +158,7 @@ pub fn mu_i_project_adj(eps: DVec3, c: &MuIConsts, g_new: DVec3) -> MuIAdj {
         g_mu_s: 0.0,
         g_d_mu: 0.0,
     };
-    let f = match classify(eps, c) {
+    let f = match classified {
         (MuICase::Separated, _) => return zero,
         (MuICase::Flow, Some(f)) => f,
         _ => {
@@ -302,7 +319,7 @@ mod tests {
             let loss = |e: DVec3, c: &MuIConsts| mu_i_project(e, c).0.dot(g_new);
             let case = mu_i_project(eps, &c0).2;
             cases[case as usize] += 1;
-            let adj = mu_i_project_adj(eps, &c0, g_new);
+            let adj = mu_i_project_adj(eps, &c0, classify(eps, &c0), g_new);
             let scale = g_new.length() * (1.0 + adj.g_eps.length());
             for k in 0..3 {
                 let mut d = DVec3::ZERO;
