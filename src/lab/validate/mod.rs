@@ -27,6 +27,7 @@ pub mod pile;
 pub mod rankine;
 pub mod repose;
 pub mod rheology;
+pub mod silo;
 pub mod stability;
 pub mod suite;
 

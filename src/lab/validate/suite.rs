@@ -2,15 +2,18 @@
 //!
 //! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
 //! `--all` adds the planar and axisymmetric column collapses, the pile angle, Rankine's
-//! vertical cut and the angle of repose against cohesion, about 35 minutes. The stability suite
+//! vertical cut, the angle of repose against cohesion and the silo discharge, about 42 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
-use super::{axisym, bar, column, incline, pile, rankine, repose, Check};
+use super::{axisym, bar, column, incline, pile, rankine, repose, silo, Check};
 use super::{
     collapse_checks, free_fall, halving_check, run_collapse, scale_invariance, small_a_band,
     Collapse, COLLAPSE_CELLS, LARGE_A, LARGE_A_SLOPE, LARGE_A_SLOPE_TOL,
 };
 use anyhow::bail;
+
+/// Wall seconds of `validate silo_discharge` on 2 cores.
+const SILO_ESTIMATE_S: f64 = 420.0;
 
 /// A validation case.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -24,6 +27,7 @@ pub enum Case {
     PileAngle,
     Rankine,
     Repose,
+    SiloDischarge,
 }
 
 /// What a long run reports while it goes: `start` names the next simulation, `advance` gives
@@ -43,7 +47,7 @@ impl Progress for Silent {
 
 impl Case {
     /// Every case but the stability suite, in the order they run.
-    pub const ALL: [Case; 9] = [
+    pub const ALL: [Case; 10] = [
         Case::FreeFall,
         Case::Bar,
         Case::SelfWeight,
@@ -53,6 +57,7 @@ impl Case {
         Case::PileAngle,
         Case::Rankine,
         Case::Repose,
+        Case::SiloDischarge,
     ];
     /// The cases `powderlab validate` runs when none is named.
     pub const QUICK: [Case; 4] = [Case::FreeFall, Case::Bar, Case::SelfWeight, Case::Incline];
@@ -68,6 +73,7 @@ impl Case {
             Case::PileAngle => "pile_angle",
             Case::Rankine => "rankine",
             Case::Repose => "repose",
+            Case::SiloDischarge => "silo_discharge",
         }
     }
 
@@ -92,6 +98,8 @@ impl Case {
             Case::PileAngle => (29.0, Some(pile::PILE_CELLS)),
             Case::Rankine => (120.0, Some(rankine::RANKINE_CELLS)),
             Case::Repose => (150.0, None),
+            // Measured on the Intel VM (five slots and the lower fill, the cells fixed).
+            Case::SiloDischarge => (SILO_ESTIMATE_S, None),
         };
         match (cells, default_cells) {
             (Some(c), Some(d)) => base * (c as f64 / d as f64).powi(3),
@@ -226,6 +234,27 @@ pub fn run(
             let opts = crate::sim::SimOptions::threads(threads);
             let rows = repose::run(&scene, &opts, &mut |l| progress.start(l))?;
             checks.extend(repose::checks(&rows));
+        }
+        Case::SiloDischarge => {
+            let mut discharge = |slot: usize, fill: usize| {
+                progress.start(format!(
+                    "silo discharge, slot {slot} cells, fill {fill} cells"
+                ));
+                silo::run_silo(&silo::Silo::new(slot, fill), threads, |f| {
+                    progress.advance(f)
+                })
+            };
+            let mut rs = Vec::new();
+            for d in silo::SLOTS {
+                rs.push(discharge(d, silo::FILL_CELLS)?);
+            }
+            let low = discharge(silo::FILL_CHECK_SLOT, silo::LOW_FILL_CELLS)?;
+            let tall = rs
+                .iter()
+                .find(|r| r.slot_cells == silo::FILL_CHECK_SLOT)
+                .cloned()
+                .expect("the fill check's slot is one of SLOTS");
+            checks.extend(silo::silo_checks(&rs, &tall, &low));
         }
     }
     Ok(checks)

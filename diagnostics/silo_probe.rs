@@ -1,0 +1,48 @@
+//! One silo discharge through a slot, printed as the validation page's row:
+//! `cargo run --release --example silo_probe -- SLOT_CELLS FILL_CELLS [dp|mui] [GRAIN_MM]`.
+//! Prints the discharged fraction every 0.1 s, then the rate and the constant.
+
+use powderlab::lab::validate::silo::{run_silo, Silo};
+use powderlab::lab::validate::Rheology;
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let usage = "usage: silo_probe SLOT_CELLS FILL_CELLS [dp|mui] [GRAIN_MM]";
+    let slot: usize = args
+        .first()
+        .and_then(|a| a.parse().ok())
+        .ok_or_else(|| anyhow::anyhow!(usage))?;
+    let fill: usize = args
+        .get(1)
+        .and_then(|a| a.parse().ok())
+        .ok_or_else(|| anyhow::anyhow!(usage))?;
+    let mut s = Silo::new(slot, fill);
+    match args.get(2).map(String::as_str) {
+        None | Some("dp") => {}
+        Some("mui") => {
+            let grain_mm: f64 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(1.0);
+            s.rheology = Rheology::mu_i_matching(s.friction_deg, grain_mm * 1e-3);
+        }
+        Some(other) => anyhow::bail!("rheology '{other}': expected dp or mui; {usage}"),
+    }
+    let r = run_silo(&s, None, |_| {})?;
+    let mut next = 0.0;
+    for &(t, f) in &r.trace {
+        if t + 1e-9 >= next {
+            println!("t = {t:.3} s  discharged {f:.4}");
+            next += 0.1;
+        }
+    }
+    println!(
+        "| {} | {} | {} | {} | {:.4} | {:.3} | {} | {:.0} s |",
+        r.slot_cells,
+        r.fill_cells,
+        args.get(2).map_or("dp", String::as_str),
+        r.particles,
+        r.rate.unwrap_or(f64::NAN),
+        r.beverloo_c.unwrap_or(f64::NAN),
+        r.substeps,
+        r.wall_s
+    );
+    Ok(())
+}
