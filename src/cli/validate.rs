@@ -14,7 +14,7 @@ pub struct Args {
     /// pile_angle, rankine, repose or stability. Without
     /// a case the quick set runs (free_fall, bar, self_weight, incline: about 20 s on 2 cores).
     case: Option<String>,
-    /// Every case but stability (about 42 minutes on 2 cores).
+    /// Every case but stability (about 39 minutes on 2 cores).
     #[arg(long, conflicts_with = "case")]
     all: bool,
     /// Grid cells across the collapsing column (default 20, the published check: every
@@ -78,7 +78,7 @@ pub fn run(a: Args) -> Result<()> {
             names.join(", "),
             duration(estimate),
             if a.case.is_none() && !a.all {
-                "; --all adds column_collapse, axisymmetric_collapse, pile_angle, rankine, repose and silo_discharge (about 42 minutes)"
+                "; --all adds column_collapse, axisymmetric_collapse, pile_angle, rankine, repose and silo_discharge (about 39 minutes)"
             } else {
                 ""
             }

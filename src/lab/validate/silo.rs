@@ -24,7 +24,9 @@ pub const SILO_SLAB_CELLS: usize = 4;
 /// Thickness of the floor plate in cells.
 pub const SILO_PLATE_CELLS: usize = 2;
 /// Slot widths of `validate silo_discharge`, in cells (the full slot; the run holds half).
-pub const SLOTS: [usize; 5] = [6, 8, 10, 12, 16];
+/// A 6-cell slot arches and stops after about 10 % has left (0.13 kg/(s·m), 1,735 s of running
+/// to the time limit), so the series starts at 8.
+pub const SLOTS: [usize; 4] = [8, 10, 12, 16];
 /// The fill height of the slot series, in cells.
 pub const FILL_CELLS: usize = 48;
 /// The slot at which the fill height is varied, and the lower fill's height in cells.

@@ -2,7 +2,7 @@
 //!
 //! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
 //! `--all` adds the planar and axisymmetric column collapses, the pile angle, Rankine's
-//! vertical cut, the angle of repose against cohesion and the silo discharge, about 42 minutes. The stability suite
+//! vertical cut, the angle of repose against cohesion and the silo discharge, about 39 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
 use super::{axisym, bar, column, incline, pile, rankine, repose, silo, Check};
@@ -13,7 +13,7 @@ use super::{
 use anyhow::bail;
 
 /// Wall seconds of `validate silo_discharge` on 2 cores.
-const SILO_ESTIMATE_S: f64 = 420.0;
+const SILO_ESTIMATE_S: f64 = 240.0;
 
 /// A validation case.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
