@@ -1,13 +1,18 @@
-//! One silo discharge through a slot, printed as the validation page's row:
-//! `cargo run --release --example silo_probe -- SLOT_CELLS FILL_CELLS [dp|mui] [GRAIN_MM]`.
+//! One silo discharge through a slot, or a round orifice with `round`, printed as the validation
+//! page's row: `cargo run --release --example silo_probe -- [round] D_CELLS FILL_CELLS [dp|mui]
+//! [GRAIN_MM]`.
 //! Prints the discharged fraction every 0.1 s, then the rate and the constant.
 
 use powderlab::lab::validate::silo::{run_silo, Silo};
 use powderlab::lab::validate::Rheology;
 
 fn main() -> anyhow::Result<()> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let usage = "usage: silo_probe SLOT_CELLS FILL_CELLS [dp|mui] [GRAIN_MM]";
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let usage = "usage: silo_probe [round] D_CELLS FILL_CELLS [dp|mui] [GRAIN_MM]";
+    let round = args.first().is_some_and(|a| a == "round");
+    if round {
+        args.remove(0);
+    }
     let slot: usize = args
         .first()
         .and_then(|a| a.parse().ok())
@@ -16,7 +21,11 @@ fn main() -> anyhow::Result<()> {
         .get(1)
         .and_then(|a| a.parse().ok())
         .ok_or_else(|| anyhow::anyhow!(usage))?;
-    let mut s = Silo::new(slot, fill);
+    let mut s = if round {
+        Silo::round(slot, fill)
+    } else {
+        Silo::new(slot, fill)
+    };
     match args.get(2).map(String::as_str) {
         None | Some("dp") => {}
         Some("mui") => {
@@ -35,7 +44,7 @@ fn main() -> anyhow::Result<()> {
     }
     println!(
         "| {} | {} | {} | {} | {:.4} | {:.3} | {} | {:.0} s |",
-        r.slot_cells,
+        r.opening_cells,
         r.fill_cells,
         args.get(2).map_or("dp", String::as_str),
         r.particles,

@@ -14,7 +14,7 @@ pub struct Args {
     /// pile_angle, rankine, repose or stability. Without
     /// a case the quick set runs (free_fall, bar, self_weight, incline: about 20 s on 2 cores).
     case: Option<String>,
-    /// Every case but stability (about 39 minutes on 2 cores).
+    /// Every case but stability (about an hour on 2 cores).
     #[arg(long, conflicts_with = "case")]
     all: bool,
     /// Grid cells across the collapsing column (default 20, the published check: every
@@ -78,9 +78,19 @@ pub fn run(a: Args) -> Result<()> {
             names.join(", "),
             duration(estimate),
             if a.case.is_none() && !a.all {
-                "; --all adds column_collapse, axisymmetric_collapse, pile_angle, rankine, repose and silo_discharge (about 39 minutes)"
+                let rest: Vec<Case> = Case::ALL
+                    .into_iter()
+                    .filter(|c| !Case::QUICK.contains(c))
+                    .collect();
+                let names: Vec<_> = rest.iter().map(|c| c.name()).collect();
+                let s: f64 = rest.iter().map(|c| c.estimate_s(None)).sum();
+                format!(
+                    "; --all adds {} (about {} more)",
+                    names.join(", "),
+                    duration(s)
+                )
             } else {
-                ""
+                String::new()
             }
         );
     }

@@ -2,7 +2,8 @@
 //!
 //! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
 //! `--all` adds the planar and axisymmetric column collapses, the pile angle, Rankine's
-//! vertical cut, the angle of repose against cohesion and the silo discharge, about 39 minutes. The stability suite
+//! vertical cut, the angle of repose against cohesion and the silo discharges through a slot
+//! and a round orifice, about 60 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
 use super::{axisym, bar, column, incline, pile, rankine, repose, silo, Check};
@@ -12,8 +13,9 @@ use super::{
 };
 use anyhow::bail;
 
-/// Wall seconds of `validate silo_discharge` on 2 cores.
+/// Wall seconds of `validate silo_discharge` and `validate orifice_discharge` on 2 cores.
 const SILO_ESTIMATE_S: f64 = 240.0;
+const ORIFICE_ESTIMATE_S: f64 = 1260.0;
 
 /// A validation case.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -28,6 +30,7 @@ pub enum Case {
     Rankine,
     Repose,
     SiloDischarge,
+    OrificeDischarge,
 }
 
 /// What a long run reports while it goes: `start` names the next simulation, `advance` gives
@@ -47,7 +50,7 @@ impl Progress for Silent {
 
 impl Case {
     /// Every case but the stability suite, in the order they run.
-    pub const ALL: [Case; 10] = [
+    pub const ALL: [Case; 11] = [
         Case::FreeFall,
         Case::Bar,
         Case::SelfWeight,
@@ -58,6 +61,7 @@ impl Case {
         Case::Rankine,
         Case::Repose,
         Case::SiloDischarge,
+        Case::OrificeDischarge,
     ];
     /// The cases `powderlab validate` runs when none is named.
     pub const QUICK: [Case; 4] = [Case::FreeFall, Case::Bar, Case::SelfWeight, Case::Incline];
@@ -74,6 +78,7 @@ impl Case {
             Case::Rankine => "rankine",
             Case::Repose => "repose",
             Case::SiloDischarge => "silo_discharge",
+            Case::OrificeDischarge => "orifice_discharge",
         }
     }
 
@@ -100,6 +105,7 @@ impl Case {
             Case::Repose => (150.0, None),
             // Measured on the Intel VM (five slots and the lower fill, the cells fixed).
             Case::SiloDischarge => (SILO_ESTIMATE_S, None),
+            Case::OrificeDischarge => (ORIFICE_ESTIMATE_S, None),
         };
         match (cells, default_cells) {
             (Some(c), Some(d)) => base * (c as f64 / d as f64).powi(3),
@@ -235,29 +241,63 @@ pub fn run(
             let rows = repose::run(&scene, &opts, &mut |l| progress.start(l))?;
             checks.extend(repose::checks(&rows));
         }
-        Case::SiloDischarge => {
-            let mut discharge = |slot: usize, fill: usize| {
-                progress.start(format!(
-                    "silo discharge, slot {slot} cells, fill {fill} cells"
-                ));
-                silo::run_silo(&silo::Silo::new(slot, fill), threads, |f| {
-                    progress.advance(f)
-                })
-            };
-            let mut rs = Vec::new();
-            for d in silo::SLOTS {
-                rs.push(discharge(d, silo::FILL_CELLS)?);
-            }
-            let low = discharge(silo::FILL_CHECK_SLOT, silo::LOW_FILL_CELLS)?;
-            let tall = rs
-                .iter()
-                .find(|r| r.slot_cells == silo::FILL_CHECK_SLOT)
-                .cloned()
-                .expect("the fill check's slot is one of SLOTS");
-            checks.extend(silo::silo_checks(&rs, &tall, &low));
-        }
+        Case::SiloDischarge => checks.extend(discharges(
+            silo::Opening::Slot,
+            &silo::SLOTS,
+            (
+                silo::FILL_CELLS,
+                silo::FILL_CHECK_SLOT,
+                silo::LOW_FILL_CELLS,
+            ),
+            threads,
+            progress,
+        )?),
+        Case::OrificeDischarge => checks.extend(discharges(
+            silo::Opening::Round,
+            &silo::ORIFICES,
+            (
+                silo::ROUND_FILL_CELLS,
+                silo::ROUND_FILL_CHECK,
+                silo::ROUND_LOW_FILL_CELLS,
+            ),
+            threads,
+            progress,
+        )?),
     }
     Ok(checks)
+}
+
+/// A silo's series: one discharge per opening at the fill `fill.0`, then the opening `fill.1`
+/// at the lower fill `fill.2`, and their checks.
+fn discharges(
+    opening: silo::Opening,
+    widths: &[usize],
+    fill: (usize, usize, usize),
+    threads: Option<usize>,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Vec<Check>> {
+    let mut discharge = |d: usize, h: usize| {
+        progress.start(format!(
+            "{}, D {d} cells, fill {h} cells",
+            opening.case().replace('_', " ")
+        ));
+        let s = match opening {
+            silo::Opening::Slot => silo::Silo::new(d, h),
+            silo::Opening::Round => silo::Silo::round(d, h),
+        };
+        silo::run_silo(&s, threads, |f| progress.advance(f))
+    };
+    let mut rs = Vec::new();
+    for &d in widths {
+        rs.push(discharge(d, fill.0)?);
+    }
+    let low = discharge(fill.1, fill.2)?;
+    let tall = rs
+        .iter()
+        .find(|r| r.opening_cells == fill.1)
+        .cloned()
+        .expect("the fill check's opening is one of the series'");
+    Ok(silo::silo_checks(opening, &rs, &tall, &low))
 }
 
 #[cfg(test)]
