@@ -1,7 +1,8 @@
 //! One silo discharge through a slot, or a round orifice with `round`, printed as the validation
 //! page's row: `cargo run --release --example silo_probe -- [round] D_CELLS FILL_CELLS [dp|mui]
 //! [GRAIN_MM]`.
-//! Prints the discharged fraction every 0.1 s, then the rate and the constant.
+//! Prints its progress on stderr, then the discharged fraction every 0.1 s, the rate and the
+//! constant.
 
 use powderlab::lab::validate::silo::{run_silo, Silo};
 use powderlab::lab::validate::Rheology;
@@ -34,7 +35,19 @@ fn main() -> anyhow::Result<()> {
         }
         Some(other) => anyhow::bail!("rheology '{other}': expected dp or mui; {usage}"),
     }
-    let r = run_silo(&s, None, |_| {})?;
+    // Progress on stderr every 5 % (of the window's end, or of the time limit if the silo jams).
+    let start = std::time::Instant::now();
+    let mut shown = 0.0;
+    let r = run_silo(&s, None, |p| {
+        if p >= shown + 0.05 {
+            shown = p;
+            eprintln!(
+                "{:3.0} %  {:.0} s",
+                100.0 * p,
+                start.elapsed().as_secs_f64()
+            );
+        }
+    })?;
     let mut next = 0.0;
     for &(t, f) in &r.trace {
         if t + 1e-9 >= next {
