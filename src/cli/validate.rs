@@ -2,7 +2,7 @@
 //! resolutions are [`powderlab::lab::validate::suite`]'s), and the stability suite.
 
 use anyhow::{bail, Result};
-use powderlab::lab::validate::suite::{self, Case, Progress};
+use powderlab::lab::validate::suite::{self, Case, Law, Progress};
 use powderlab::util::check_output_file;
 use serde_json::json;
 use std::path::PathBuf;
@@ -11,12 +11,21 @@ use std::path::PathBuf;
 #[derive(clap::Args)]
 pub struct Args {
     /// free_fall, bar, self_weight, incline, column_collapse, axisymmetric_collapse,
-    /// pile_angle, rankine, repose or stability. Without
+    /// pile_angle, rankine, repose, silo_discharge, orifice_discharge or stability. Without
     /// a case the quick set runs (free_fall, bar, self_weight, incline: about 20 s on 2 cores).
     case: Option<String>,
-    /// Every case but stability (about an hour on 2 cores).
+    /// Every case but stability (about an hour on 2 cores); with `--rheology mu_i`, every case
+    /// whose powder flows.
     #[arg(long, conflicts_with = "case")]
     all: bool,
+    /// The flowing cases' rheology (column_collapse, axisymmetric_collapse, silo_discharge,
+    /// orifice_discharge): `cone`, the Drucker–Prager cone of the published checks, or `mu_i`,
+    /// μ(I) with the cone's static friction and grains of --grain-mm.
+    #[arg(long, value_enum, default_value = "cone")]
+    rheology: Flow,
+    /// The μ(I) grain diameter in millimetres (with --rheology mu_i; default 1).
+    #[arg(long)]
+    grain_mm: Option<f64>,
     /// Grid cells across the collapsing column (default 20, the published check: every
     /// large-a column, and the tallest small-a one, whose band stands 1.5× as many cells
     /// high), across the axisymmetric column's radius (default 20), the pile's column (default
@@ -31,6 +40,13 @@ pub struct Args {
     /// Also write the JSON report here.
     #[arg(long)]
     report: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Flow {
+    Cone,
+    #[value(name = "mu_i")]
+    MuI,
 }
 
 /// Moves an indicatif bar through each simulation of a case.
@@ -70,6 +86,33 @@ pub fn run(a: Args) -> Result<()> {
         None if a.all => Case::ALL.to_vec(),
         None => Case::QUICK.to_vec(),
     };
+    let law = match (a.rheology, a.grain_mm) {
+        (Flow::Cone, None) => Law::Cone,
+        (Flow::Cone, Some(g)) => {
+            bail!("--grain-mm {g}: the cone has no grain size; add --rheology mu_i")
+        }
+        (Flow::MuI, g) => {
+            let g = g.unwrap_or(1.0);
+            if !(g.is_finite() && g > 0.0) {
+                bail!(
+                    "--grain-mm {g}: the grain diameter must be a positive number of millimetres"
+                );
+            }
+            Law::MuI {
+                grain_diameter: g * 1e-3,
+            }
+        }
+    };
+    let cases: Vec<Case> = match law {
+        Law::MuI { .. } if a.all => cases.into_iter().filter(|c| c.flows()).collect(),
+        Law::MuI { .. } if a.case.is_none() => bail!(
+            "--rheology mu_i: the quick set has no flow law to change; name a flowing case or use --all"
+        ),
+        _ => cases,
+    };
+    for &c in &cases {
+        suite::refuse(c, law)?;
+    }
     let estimate: f64 = cases.iter().map(|c| c.estimate_s(a.cells)).sum();
     if !a.json {
         let names: Vec<_> = cases.iter().map(|c| c.name()).collect();
@@ -77,7 +120,7 @@ pub fn run(a: Args) -> Result<()> {
             "validate: {} — about {} on 2 cores{}",
             names.join(", "),
             duration(estimate),
-            if a.case.is_none() && !a.all {
+            if a.case.is_none() && !a.all && law == Law::Cone {
                 let rest: Vec<Case> = Case::ALL
                     .into_iter()
                     .filter(|c| !Case::QUICK.contains(c))
@@ -100,7 +143,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut checks = Vec::new();
     for c in cases {
-        checks.extend(suite::run(c, a.cells, a.threads, &mut bar)?);
+        checks.extend(suite::run(c, a.cells, a.threads, law, &mut bar)?);
     }
     bar.pb.finish_and_clear();
     let passed = checks.iter().all(|c| c.passed);

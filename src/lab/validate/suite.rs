@@ -6,7 +6,7 @@
 //! and a round orifice, about 60 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
-use super::{axisym, bar, column, incline, pile, rankine, repose, silo, Check};
+use super::{axisym, bar, column, incline, pile, rankine, repose, silo, Check, Rheology};
 use super::{
     collapse_checks, free_fall, halving_check, run_collapse, scale_invariance, small_a_band,
     Collapse, COLLAPSE_CELLS, LARGE_A, LARGE_A_SLOPE, LARGE_A_SLOPE_TOL,
@@ -31,6 +31,25 @@ pub enum Case {
     Repose,
     SiloDischarge,
     OrificeDischarge,
+}
+
+/// The flow law of the granular-flow cases' powder ([`Case::flows`]): the Drucker–Prager cone
+/// the published checks use, or μ(I) with the cone's static friction
+/// ([`Rheology::mu_i_matching`]) and grains of `grain_diameter` (m).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Law {
+    Cone,
+    MuI { grain_diameter: f64 },
+}
+
+impl Law {
+    /// The collapse or silo powder's rheology at Klár's `friction_deg`.
+    fn rheology(self, friction_deg: f64) -> Rheology {
+        match self {
+            Law::Cone => Rheology::DruckerPrager,
+            Law::MuI { grain_diameter } => Rheology::mu_i_matching(friction_deg, grain_diameter),
+        }
+    }
 }
 
 /// What a long run reports while it goes: `start` names the next simulation, `advance` gives
@@ -82,6 +101,18 @@ impl Case {
         }
     }
 
+    /// Whether the case's powder flows under a law [`Law`] can change: the column collapses and
+    /// the silos. The others check elasticity, static friction or the cone itself.
+    pub fn flows(self) -> bool {
+        matches!(
+            self,
+            Case::ColumnCollapse
+                | Case::AxisymmetricCollapse
+                | Case::SiloDischarge
+                | Case::OrificeDischarge
+        )
+    }
+
     pub fn parse(s: &str) -> Option<Case> {
         Case::ALL.into_iter().find(|c| c.name() == s)
     }
@@ -115,11 +146,54 @@ impl Case {
 }
 
 /// Runs one case and returns its checks. `cells` sets the collapse's cells across L₀
-/// (default [`COLLAPSE_CELLS`]) or the pile's column (default [`pile::PILE_CELLS`]).
+/// (default [`COLLAPSE_CELLS`]) or the pile's column (default [`pile::PILE_CELLS`]); `law`
+/// sets the flowing cases' rheology (a case that does not flow refuses μ(I)). Under μ(I) every
+/// check's note says so, and the collapse's scale invariance is left out: μ(I) has a length,
+/// the grain, so a column twice as large is not the same flow at twice the size.
 pub fn run(
     case: Case,
     cells: Option<usize>,
     threads: Option<usize>,
+    law: Law,
+    progress: &mut dyn Progress,
+) -> anyhow::Result<Vec<Check>> {
+    refuse(case, law)?;
+    let mut checks = run_case(case, cells, threads, law, progress)?;
+    if let Law::MuI { grain_diameter } = law {
+        for c in &mut checks {
+            let tag = format!("μ(I), grains of {} mm", grain_diameter * 1e3);
+            c.note = if c.note.is_empty() {
+                tag
+            } else {
+                format!("{tag}; {}", c.note)
+            };
+        }
+    }
+    Ok(checks)
+}
+
+/// An error where `case` does not flow and `law` is μ(I).
+pub fn refuse(case: Case, law: Law) -> anyhow::Result<()> {
+    if matches!(law, Law::MuI { .. }) && !case.flows() {
+        let flowing: Vec<_> = Case::ALL
+            .into_iter()
+            .filter(|c| c.flows())
+            .map(|c| c.name())
+            .collect();
+        bail!(
+            "--rheology mu_i: {} has no flow law to change; μ(I) applies to {}",
+            case.name(),
+            flowing.join(", ")
+        );
+    }
+    Ok(())
+}
+
+fn run_case(
+    case: Case,
+    cells: Option<usize>,
+    threads: Option<usize>,
+    law: Law,
     progress: &mut dyn Progress,
 ) -> anyhow::Result<Vec<Check>> {
     let mut checks = Vec::new();
@@ -155,7 +229,9 @@ pub fn run(
             }
             let mut collapse = |a: f64, cells: usize| {
                 progress.start(format!("column collapse a = {a}, {cells} cells"));
-                run_collapse(&Collapse::new(a, cells), threads, |f| progress.advance(f))
+                let mut c = Collapse::new(a, cells);
+                c.rheology = law.rheology(c.friction_deg);
+                run_collapse(&c, threads, |f| progress.advance(f))
             };
             let (small, at_one) = small_a_band(cells, &mut collapse)?;
             checks.extend(small);
@@ -172,7 +248,9 @@ pub fn run(
             ));
             let fine = collapse(1.0, 2 * cells)?;
             checks.push(halving_check(&at_one, &fine, cells));
-            checks.push(scale_invariance(1.0, cells, threads)?);
+            if law == Law::Cone {
+                checks.push(scale_invariance(1.0, cells, threads)?);
+            }
         }
         Case::AxisymmetricCollapse => {
             let cells = cells.unwrap_or(axisym::AXISYM_CELLS);
@@ -184,9 +262,9 @@ pub fn run(
             }
             let mut collapse = |a: f64, cells: usize| {
                 progress.start(format!("axisymmetric collapse a = {a}, {cells} cells"));
-                axisym::run_axisym(&axisym::Axisym::new(a, cells), threads, |f| {
-                    progress.advance(f)
-                })
+                let mut c = axisym::Axisym::new(a, cells);
+                c.rheology = law.rheology(c.friction_deg);
+                axisym::run_axisym(&c, threads, |f| progress.advance(f))
             };
             let mut rs = Vec::new();
             for a in axisym::AXISYM_A {
@@ -241,39 +319,22 @@ pub fn run(
             let rows = repose::run(&scene, &opts, &mut |l| progress.start(l))?;
             checks.extend(repose::checks(&rows));
         }
-        Case::SiloDischarge => checks.extend(discharges(
-            silo::Opening::Slot,
-            &silo::SLOTS,
-            (
-                silo::FILL_CELLS,
-                silo::FILL_CHECK_SLOT,
-                silo::LOW_FILL_CELLS,
-            ),
-            threads,
-            progress,
-        )?),
-        Case::OrificeDischarge => checks.extend(discharges(
-            silo::Opening::Round,
-            &silo::ORIFICES,
-            (
-                silo::ROUND_FILL_CELLS,
-                silo::ROUND_FILL_CHECK,
-                silo::ROUND_LOW_FILL_CELLS,
-            ),
-            threads,
-            progress,
-        )?),
+        Case::SiloDischarge => {
+            checks.extend(discharges(silo::Opening::Slot, threads, law, progress)?)
+        }
+        Case::OrificeDischarge => {
+            checks.extend(discharges(silo::Opening::Round, threads, law, progress)?)
+        }
     }
     Ok(checks)
 }
 
-/// A silo's series: one discharge per opening at the fill `fill.0`, then the opening `fill.1`
-/// at the lower fill `fill.2`, and their checks.
+/// A silo's series ([`silo::Opening::series`]): one discharge per opening at the series' fill,
+/// then the fill check's opening at the lower fill, and their checks.
 fn discharges(
     opening: silo::Opening,
-    widths: &[usize],
-    fill: (usize, usize, usize),
     threads: Option<usize>,
+    law: Law,
     progress: &mut dyn Progress,
 ) -> anyhow::Result<Vec<Check>> {
     let mut discharge = |d: usize, h: usize| {
@@ -281,20 +342,22 @@ fn discharges(
             "{}, D {d} cells, fill {h} cells",
             opening.case().replace('_', " ")
         ));
-        let s = match opening {
+        let mut s = match opening {
             silo::Opening::Slot => silo::Silo::new(d, h),
             silo::Opening::Round => silo::Silo::round(d, h),
         };
+        s.rheology = law.rheology(s.friction_deg);
         silo::run_silo(&s, threads, |f| progress.advance(f))
     };
+    let (widths, fill, check, low_fill) = opening.series();
     let mut rs = Vec::new();
     for &d in widths {
-        rs.push(discharge(d, fill.0)?);
+        rs.push(discharge(d, fill)?);
     }
-    let low = discharge(fill.1, fill.2)?;
+    let low = discharge(check, low_fill)?;
     let tall = rs
         .iter()
-        .find(|r| r.opening_cells == fill.1)
+        .find(|r| r.opening_cells == check)
         .cloned()
         .expect("the fill check's opening is one of the series'");
     Ok(silo::silo_checks(opening, &rs, &tall, &low))
@@ -310,6 +373,18 @@ mod tests {
             assert_eq!(Case::parse(c.name()), Some(c));
         }
         assert_eq!(Case::parse("stability"), None);
+    }
+
+    #[test]
+    fn a_case_that_does_not_flow_refuses_mu_i_before_it_runs() {
+        let law = Law::MuI {
+            grain_diameter: 1e-3,
+        };
+        for c in Case::ALL.into_iter().filter(|c| !c.flows()) {
+            let e = run(c, None, Some(1), law, &mut Silent).unwrap_err();
+            assert!(e.to_string().contains(c.name()), "{e}");
+        }
+        assert_eq!(Case::ALL.iter().filter(|c| c.flows()).count(), 4);
     }
 
     #[test]

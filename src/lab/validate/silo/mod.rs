@@ -77,6 +77,20 @@ pub enum Opening {
 }
 
 impl Opening {
+    /// The validation series: its openings (cells), its fill height, and the opening and the
+    /// lower fill of the fill check.
+    pub fn series(self) -> (&'static [usize], usize, usize, usize) {
+        match self {
+            Opening::Slot => (&SLOTS, FILL_CELLS, FILL_CHECK_SLOT, LOW_FILL_CELLS),
+            Opening::Round => (
+                &ORIFICES,
+                ROUND_FILL_CELLS,
+                ROUND_FILL_CHECK,
+                ROUND_LOW_FILL_CELLS,
+            ),
+        }
+    }
+
     /// Beverloo's exponent: 3/2 for a slot, 5/2 for a round orifice.
     pub fn exponent(self) -> f64 {
         match self {
