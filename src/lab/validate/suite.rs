@@ -158,44 +158,6 @@ pub fn run(
     progress: &mut dyn Progress,
 ) -> anyhow::Result<Vec<Check>> {
     refuse(case, law)?;
-    let mut checks = run_case(case, cells, threads, law, progress)?;
-    if let Law::MuI { grain_diameter } = law {
-        for c in &mut checks {
-            let tag = format!("μ(I), grains of {} mm", grain_diameter * 1e3);
-            c.note = if c.note.is_empty() {
-                tag
-            } else {
-                format!("{tag}; {}", c.note)
-            };
-        }
-    }
-    Ok(checks)
-}
-
-/// An error where `case` does not flow and `law` is μ(I).
-pub fn refuse(case: Case, law: Law) -> anyhow::Result<()> {
-    if matches!(law, Law::MuI { .. }) && !case.flows() {
-        let flowing: Vec<_> = Case::ALL
-            .into_iter()
-            .filter(|c| c.flows())
-            .map(|c| c.name())
-            .collect();
-        bail!(
-            "--rheology mu_i: {} has no flow law to change; μ(I) applies to {}",
-            case.name(),
-            flowing.join(", ")
-        );
-    }
-    Ok(())
-}
-
-fn run_case(
-    case: Case,
-    cells: Option<usize>,
-    threads: Option<usize>,
-    law: Law,
-    progress: &mut dyn Progress,
-) -> anyhow::Result<Vec<Check>> {
     let mut checks = Vec::new();
     match case {
         Case::FreeFall => checks.extend(free_fall(threads)?),
@@ -326,7 +288,34 @@ fn run_case(
             checks.extend(discharges(silo::Opening::Round, threads, law, progress)?)
         }
     }
+    if let Law::MuI { grain_diameter } = law {
+        for c in &mut checks {
+            let tag = format!("μ(I), grains of {} mm", grain_diameter * 1e3);
+            c.note = if c.note.is_empty() {
+                tag
+            } else {
+                format!("{tag}; {}", c.note)
+            };
+        }
+    }
     Ok(checks)
+}
+
+/// An error where `case` does not flow and `law` is μ(I).
+pub fn refuse(case: Case, law: Law) -> anyhow::Result<()> {
+    if matches!(law, Law::MuI { .. }) && !case.flows() {
+        let flowing: Vec<_> = Case::ALL
+            .into_iter()
+            .filter(|c| c.flows())
+            .map(|c| c.name())
+            .collect();
+        bail!(
+            "--rheology mu_i: {} has no flow law to change; μ(I) applies to {}",
+            case.name(),
+            flowing.join(", ")
+        );
+    }
+    Ok(())
 }
 
 /// A silo's series ([`silo::Opening::series`]): one discharge per opening at the series' fill,
