@@ -14,7 +14,7 @@ pub struct Args {
     /// pile_angle, rankine, repose, silo_discharge, orifice_discharge or stability. Without
     /// a case the quick set runs (free_fall, bar, self_weight, incline: about 20 s on 2 cores).
     case: Option<String>,
-    /// Every case but stability (about 70 minutes on 2 cores); with `--rheology mu_i`, every case
+    /// Every case but stability (about an hour on 2 cores); with `--rheology mu_i`, every case
     /// whose powder flows.
     #[arg(long, conflicts_with = "case")]
     all: bool,

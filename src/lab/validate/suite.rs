@@ -3,7 +3,7 @@
 //! The quick set (no case named) is the exact and verification cases, about 20 s on 2 cores;
 //! `--all` adds the planar and axisymmetric column collapses, the pile angle, Rankine's
 //! vertical cut, the angle of repose against cohesion and the silo discharges through a slot
-//! and a round orifice, about 70 minutes. The stability suite
+//! and a round orifice, about 60 minutes. The stability suite
 //! has a table of its own ([`super::stability`]) and runs only when named.
 
 use super::{axisym, bar, column, incline, pile, rankine, repose, silo, Check, Rheology};
@@ -15,7 +15,7 @@ use anyhow::bail;
 
 /// Wall seconds of `validate silo_discharge` and `validate orifice_discharge` on 2 cores.
 const SILO_ESTIMATE_S: f64 = 240.0;
-const ORIFICE_ESTIMATE_S: f64 = 1930.0;
+const ORIFICE_ESTIMATE_S: f64 = 1250.0;
 
 /// A validation case.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

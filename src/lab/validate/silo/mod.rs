@@ -426,7 +426,7 @@ pub fn silo_checks(
     match beverloo_fit(&pts, true) {
         Some(f) => out.push(Check {
             note: format!(
-                "|exponent - {n}| within the tolerance; D0 = {:.2} cells, C = {:.3} in cells, rms of ln W {:.3}, over {} {word}s{}",
+                "criterion |exponent - {n}| <= tolerance; D0 = {:.2} cells, C = {:.4e} with D in cells, rms of ln W {:.3}, over {} {word}s{}",
                 f.offset,
                 f.prefactor,
                 f.rms,
