@@ -120,7 +120,7 @@ pub fn run(a: Args) -> Result<()> {
             "validate: {} — about {} on 2 cores{}",
             names.join(", "),
             duration(estimate),
-            if a.case.is_none() && !a.all && law == Law::Cone {
+            if a.case.is_none() && !a.all {
                 let rest: Vec<Case> = Case::ALL
                     .into_iter()
                     .filter(|c| !Case::QUICK.contains(c))
