@@ -1,7 +1,6 @@
 //! One silo discharge through a slot, or a round orifice with `round`, printed as the validation
-//! page's row: `cargo run --release --example silo_probe -- [--half-width CELLS] [round] D_CELLS
-//! FILL_CELLS [dp|mui] [GRAIN_MM]` (`--half-width` sets the simulated part's width, the case's
-//! own by default).
+//! page's row: `cargo run --release --example silo_probe -- [round] D_CELLS FILL_CELLS [dp|mui]
+//! [GRAIN_MM]`.
 //! Prints its progress on stderr, then the discharged fraction every 0.1 s, the rate and the
 //! constant.
 
@@ -10,16 +9,7 @@ use powderlab::lab::validate::Rheology;
 
 fn main() -> anyhow::Result<()> {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
-    let usage =
-        "usage: silo_probe [--half-width CELLS] [round] D_CELLS FILL_CELLS [dp|mui] [GRAIN_MM]";
-    let mut half_width = None;
-    if args.first().is_some_and(|a| a == "--half-width") {
-        let w: usize = args.get(1).and_then(|a| a.parse().ok()).ok_or_else(|| {
-            anyhow::anyhow!("--half-width takes a whole number of cells; {usage}")
-        })?;
-        half_width = Some(w);
-        args.drain(..2);
-    }
+    let usage = "usage: silo_probe [round] D_CELLS FILL_CELLS [dp|mui] [GRAIN_MM]";
     let round = args.first().is_some_and(|a| a == "round");
     if round {
         args.remove(0);
@@ -37,9 +27,6 @@ fn main() -> anyhow::Result<()> {
     } else {
         Silo::new(slot, fill)
     };
-    if let Some(w) = half_width {
-        s.half_width_cells = w;
-    }
     match args.get(2).map(String::as_str) {
         None | Some("dp") => {}
         Some("mui") => {
